@@ -20,12 +20,24 @@ _UNSET: Any = object()
 
 
 def format_value(value: Any) -> str:
-    """``value`` as a person reads it in an error message: ``json.dumps(value)``, or ``str`` of a non-finite float."""
+    """``value`` as a person reads it in an error message: JSON, or ``nan`` / ``inf`` as such.
+
+    Parameters
+    ----------
+    value : object
+        A JSON-serialisable value (what a TOML or JSON file holds).
+
+    Returns
+    -------
+    str
+        ``json.dumps(value)``, except ``str(value)`` for a non-finite float (JSON has no spelling
+        for it).
+    """
     return json.dumps(value) if not isinstance(value, float) or math.isfinite(value) else str(value)
 
 
 def keyed_error(error: type[E], source: str, key: str, reason: str, value: Any = _UNSET) -> E:
-    """The error of one bad key: ``error("<source>: <key>: <reason>[ (got <value>)]")``, for the caller to raise.
+    """The error of one bad key: ``error("<source>: <key>: <reason>[ (got <value>)]")``.
 
     Parameters
     ----------
@@ -34,18 +46,36 @@ def keyed_error(error: type[E], source: str, key: str, reason: str, value: Any =
     source : str
         The file (or ``"<dict>"``) being validated.
     key : str
-        Dotted key of the bad entry (``"sweeps[0].values"``).
+        Dotted key of the bad entry (``"sweeps[0].values"``, ``"params.colon.station"``).
     reason : str
         What is wrong with it.
     value : object, optional
-        The offending value (:func:`format_value`), appended when given.
+        The offending value, appended as `` (got <value>)`` (:func:`format_value`) when given.
+
+    Returns
+    -------
+    Exception
+        An instance of ``error``, for the caller to raise.
     """
     tail = "" if value is _UNSET else f" (got {format_value(value)})"
     return error(f"{source}: {key}: {reason}{tail}")
 
 
 def finite_number(value: Any, where: str, error: type[Exception] = ValueError) -> float:
-    """``value`` (a Python or numpy int or float, not a bool) as a finite float, or ``error`` naming ``where``.
+    """``value`` as a finite float, or ``error`` naming ``where``.
+
+    Parameters
+    ----------
+    value : object
+        A Python or numpy integer or float (a boolean is refused).
+    where : str
+        What the value is, for the message (``"camera.json: key 'c'"``).
+    error : type
+        Exception class raised.
+
+    Returns
+    -------
+    float
 
     Raises
     ------

@@ -211,7 +211,19 @@ def validated(cls: Any, data: Any, error: type[Exception], source: str, prefix: 
               known: Callable[[tuple], str | None] | None = None) -> Any:
     """``data`` validated as ``cls`` (a pydantic dataclass or a type), or the one-line ``error``.
 
-    ``error``, ``source``, ``prefix``, ``known`` as for :func:`validation_error`.
+    Parameters
+    ----------
+    cls : type
+        What ``data`` must be.
+    data : object
+        The table (or value) as read from the file.
+    error, source, prefix, known
+        As for :func:`validation_error`.
+
+    Returns
+    -------
+    object
+        The validated value.
 
     Raises
     ------

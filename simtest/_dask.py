@@ -25,14 +25,20 @@ class SchedulerError(ValueError):
 
 
 def check_scheduler_address(address: str) -> None:
-    """Refuse a scheduler address (``PROTOCOL://HOST:PORT``) that cannot work, before trying to connect.
+    """Refuse a scheduler address that cannot work, before trying to connect.
+
+    Parameters
+    ----------
+    address : str
+        ``PROTOCOL://HOST:PORT``, e.g. ``tcp://127.0.0.1:8786``.
 
     Raises
     ------
     SchedulerError
-        If the address has no known protocol or port, or its host does not resolve (one line).
+        If the address has no known protocol or port, or its host name does not resolve; the
+        message names the address and why.
     simtest._lazy.MissingBackend
-        If Dask's ``distributed`` is not installed.
+        If Dask's ``distributed`` is not installed (the message names the extra).
     """
     addressing = require("distributed.comm.addressing", purpose="--scheduler")
     where = f"--scheduler {address!r}"
@@ -54,9 +60,19 @@ def check_scheduler_address(address: str) -> None:
 
 
 def connect(address: str, timeout: str | None = None):
-    """A ``distributed.Client`` of the cluster at ``address`` (not the default client; close it when done).
+    """A ``distributed.Client`` of the cluster at ``address`` (not made the default client).
 
-    ``timeout`` is Dask's time string, default :data:`CONNECT_TIMEOUT`.
+    Parameters
+    ----------
+    address : str
+        The scheduler's address (:func:`check_scheduler_address`).
+    timeout : str, optional
+        How long to wait for the scheduler (Dask's time string); default :data:`CONNECT_TIMEOUT`.
+
+    Returns
+    -------
+    distributed.Client
+        Close it when done.
 
     Raises
     ------

@@ -52,7 +52,14 @@ def one_line(message: object) -> str:
 
 
 def fail(message: object, code: int = BAD_INPUT) -> NoReturn:
-    """Print ``error: <message>`` (folded onto one line) to standard error and exit with ``code``.
+    """Print ``error: <message>`` on one line to standard error and exit with ``code``.
+
+    Parameters
+    ----------
+    message : object
+        What is wrong and where (file, key, pixel, value); folded onto one line.
+    code : int
+        One of the exit codes of this module.
 
     Raises
     ------
@@ -64,15 +71,29 @@ def fail(message: object, code: int = BAD_INPUT) -> NoReturn:
 
 
 def writable_dir(path: Path | str, option: str = "--out") -> Path:
-    """Check, before any work, that ``path`` is or can become a writable folder (it is not created).
+    """Check, before any work, that ``path`` is or can become a writable folder.
 
-    The nearest existing ancestor must be a folder that accepts a new entry (a temporary file is made and
-    removed there). Returns ``path`` as a Path.
+    The folder is not created: the nearest existing ancestor is checked for being a folder and
+    for accepting a new entry (a temporary file is made and removed there), so that a long run
+    never ends in an output it cannot write.
+
+    Parameters
+    ----------
+    path : path-like
+        The output folder a command will write (created later, as a set, by the command).
+    option : str
+        The option that named it, for the message.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path`` as a Path.
 
     Raises
     ------
     typer.Exit
-        With :data:`CANNOT_WRITE` and one line naming the path and why.
+        With :data:`CANNOT_WRITE` and one line naming the path and why, when ``path`` (or an
+        ancestor) is a file, or the folder is not writable.
     """
     p = Path(path)
     probe = p
@@ -99,11 +120,23 @@ _SAFE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,127}")
 def safe_name(name: str, option: str) -> str:
     """``name`` if it is one plain folder name (no separator, no ``..``), else exit 2.
 
+    Parameters
+    ----------
+    name : str
+        A run id or other name that becomes one folder under an output root.
+    option : str
+        The option that gave it, for the message.
+
+    Returns
+    -------
+    str
+        ``name`` unchanged.
+
     Raises
     ------
     typer.Exit
-        With :data:`BAD_INPUT` when ``name`` could leave its root, starts with a dot or a dash, or has other
-        characters than letters, digits and ``._+-``.
+        With :data:`BAD_INPUT` and one line when ``name`` could leave its root (``..``, ``/``),
+        starts with a dot or a dash, or has other characters than letters, digits and ``._+-``.
     """
     if not _SAFE.fullmatch(name) or name in {".", ".."} or ".." in name:
         fail(f"{option}: {name!r} is not a plain folder name (letters, digits and . _ + -, "
@@ -133,9 +166,17 @@ class SignalState:
 def signals_interrupt() -> Iterator[SignalState]:
     """Within the block, SIGINT and SIGTERM raise :class:`SignalInterrupt` in the main thread.
 
-    Only the first signal raises (the clean-up it started is not cut short); it is also recorded in the
-    yielded :class:`SignalState`, for where a library swallowed or converted the exception. The previous
-    handlers return on leaving; outside the main thread the block runs unchanged.
+    Only the first signal raises; later ones are ignored, so that the clean-up the first one
+    started (stopping workers, removing a temporary folder) is not cut short. The signal is also
+    recorded in the state yielded, for the caller to see it where a library swallowed the
+    exception or turned it into another one (an import inside Mitsuba turns it into a
+    SystemError). On leaving, the previous handlers return. Outside the main thread (where Python
+    cannot handle signals) the block runs unchanged.
+
+    Yields
+    ------
+    SignalState
+        Its ``signame`` is set (``"SIGTERM"``, ``"SIGINT"``) once a signal came.
     """
     state = SignalState()
     if threading.current_thread() is not threading.main_thread():

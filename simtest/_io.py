@@ -112,12 +112,28 @@ def atomic_write_text(path, text: str) -> Path:
 
 
 def atomic_write_json(path, obj, *, indent: int = 1, **dumps_kwargs) -> Path:
-    """Write ``json.dumps(obj, indent=indent, **dumps_kwargs)`` and a newline to ``path`` atomically.
+    """Write ``obj`` as JSON, ``json.dumps(obj, indent=indent, **dumps_kwargs)`` and a newline.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination, written atomically (see the module docstring).
+    obj : object
+        JSON-serialisable value.
+    indent : int
+        Indentation of ``json.dumps``.
+    **dumps_kwargs
+        Further ``json.dumps`` options (``sort_keys``, ``allow_nan``, ...).
+
+    Returns
+    -------
+    Path
+        The destination.
 
     Raises
     ------
     TypeError, ValueError
-        From ``json.dumps``; nothing is written.
+        From ``json.dumps`` (not serialisable, or NaN with ``allow_nan=False``); nothing is written.
     """
     return atomic_write_text(path, json.dumps(obj, indent=indent, **dumps_kwargs) + "\n")
 
@@ -239,9 +255,14 @@ def _fsync_dir(path: Path) -> None:
 
 
 def recover_output_folder(out) -> bool:
-    """Undo a killed swap: put back the previous set (``.<name>.old-*``) if ``out`` is missing, remove stale folders.
+    """Put back the previous set if a kill left ``out`` missing between the two renames of the
+    fallback swap (the previous set then sits beside it as ``.<name>.old-*``), and remove what
+    killed runs left beside ``out`` (their temporary folders). Call it holding the parent's lock.
 
-    Call it holding the parent's lock. Returns True if a previous set was put back.
+    Returns
+    -------
+    bool
+        True if a previous set was put back.
     """
     out = Path(out)
     if not out.parent.is_dir():

@@ -39,16 +39,29 @@ class MissingBackend(ImportError):
 
 
 def require(module: str, *, purpose: str | None = None) -> ModuleType:
-    """Import an optional back-end (or one of its submodules, e.g. ``"torch.utils.data"``) when first needed.
+    """Import an optional heavy back-end (or one of its submodules) when it is first needed.
 
-    ``purpose`` names what needs it in the error message (e.g. ``"--scheduler"``).
+    Parameters
+    ----------
+    module : str
+        Dotted module name whose top-level package is in :data:`BACKENDS`, e.g. ``"mitsuba"``,
+        ``"distributed"`` or ``"torch.utils.data"``.
+    purpose : str, optional
+        What needs it, for the error message (e.g. ``"--scheduler"``).
+
+    Returns
+    -------
+    module
+        The imported module (``sys.modules`` caches it: a second call costs a dict lookup).
 
     Raises
     ------
     MissingBackend
-        If the back-end is not installed: ``"<purpose> needs <package>, which is not installed: <command>"``.
+        If the back-end is not installed: ``"<purpose> needs <package>, which is not installed:
+        <install command>"``.
     ValueError
-        If ``module`` is not one of the optional back-ends.
+        If ``module`` is not one of the optional back-ends (every other import belongs at module
+        top).
     """
     top = module.split(".", 1)[0]
     if top not in BACKENDS:

@@ -27,7 +27,13 @@ def _major(path: str) -> int | None:
 
 
 def find_libllvm() -> str | None:
-    """The path of the newest LLVM >= 16 shared library found (e.g. ``.../libLLVM-19.so``), or None."""
+    """Return the path of the newest LLVM >= 16 shared library found, or None.
+
+    Returns
+    -------
+    str or None
+        An absolute path such as ``/usr/lib/x86_64-linux-gnu/libLLVM-19.so``.
+    """
     found: list[tuple[int, str]] = []
     for pattern in _SEARCH:
         for path in glob.glob(pattern):

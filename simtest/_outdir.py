@@ -50,15 +50,32 @@ def check_out_folder(out: Path | str, owned, option: str = "--out") -> Path:
 
 
 def write_out_folder(out: Path | str, target: Path | str, fill, owned=None, option: str = "--out") -> Path:
-    """:func:`simtest._io.replace_output_folder` of ``target`` (from :func:`check_out_folder`) with one-line errors.
+    """:func:`simtest._io.replace_output_folder` with one-line errors.
 
-    ``out`` is the folder as given, for messages; ``owned`` is checked again just before the swap.
+    Parameters
+    ----------
+    out : path-like
+        The folder as the user gave it, for messages.
+    target : path-like
+        The folder :func:`check_out_folder` returned.
+    fill : callable
+        Writes the whole set into the folder it is given.
+    owned : sequence of str, optional
+        Checked again under the folder's lock just before the swap.
+    option : str
+        The option's name, for messages.
+
+    Returns
+    -------
+    pathlib.Path
+        ``target``.
 
     Raises
     ------
     typer.Exit
-        :data:`CANNOT_WRITE` for an OSError or files that appeared meanwhile, :data:`BAD_INPUT` for a bad input
-        found while writing (ValueError, a missing optional library); the folder keeps its previous set.
+        :data:`CANNOT_WRITE` for an OSError (disk full, permissions) or files that appeared in
+        the folder meanwhile, :data:`BAD_INPUT` for a bad input found while writing (ValueError,
+        a missing optional library); the folder keeps its previous set either way.
     """
     try:
         return replace_output_folder(target, fill, owned=owned)

@@ -28,10 +28,19 @@ GENERATED_INIT: dict[type, object] = {}
 
 
 def fast_init(cls: type) -> type:
-    """Give a frozen dataclass an ``__init__`` that fills the instance's ``__dict__`` directly; return ``cls``.
+    """Give a frozen dataclass an ``__init__`` that fills the instance's ``__dict__`` directly.
 
-    ``cls`` must be ``@dataclass(frozen=True)`` (apply this decorator above it) without ``slots``,
-    ``init=False``, ``kw_only`` or ``default_factory`` fields.
+    Parameters
+    ----------
+    cls : type
+        A class decorated with ``@dataclass(frozen=True)`` (apply this decorator above it),
+        without ``slots``, whose fields are all set by ``__init__`` (no ``init=False``), given
+        positionally or by keyword (no ``kw_only``), with plain defaults (no ``default_factory``).
+
+    Returns
+    -------
+    type
+        ``cls``, its ``__init__`` replaced.
 
     Raises
     ------

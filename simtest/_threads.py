@@ -20,10 +20,17 @@ __all__ = ["one_thread_each"]
 
 @contextlib.contextmanager
 def one_thread_each() -> Iterator[None]:
-    """Within the block, this process and the workers it starts run BLAS and OpenMP on one thread each.
+    """Within the block, this process and the worker processes it starts (forked or spawned) run
+    BLAS and OpenMP on one thread each; on leaving, the previous limits and environment return.
 
-    Uses threadpoolctl's run-time limit and :data:`simtest.constants.SINGLE_THREAD_ENV`; on leaving, the
-    previous limits and environment return.
+    Yields
+    ------
+    None
+
+    Notes
+    -----
+    The run-time limit is threadpoolctl's (https://github.com/joblib/threadpoolctl), the
+    environment :data:`simtest.constants.SINGLE_THREAD_ENV`.
     """
     saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
     os.environ.update(SINGLE_THREAD_ENV)

@@ -52,7 +52,14 @@ def _worker_start(parent_pid: int, initializer: Callable | None, initargs: tuple
 
 def new_pool(max_workers: int, *, mp_context=None, initializer: Callable | None = None,
              initargs: tuple = ()) -> ProcessPoolExecutor:
-    """The pool of :func:`worker_pool` (same parameters), for a caller that holds it beyond one block."""
+    """The pool of :func:`worker_pool` (same parameters), for a caller that holds it beyond one block.
+
+    Returns
+    -------
+    ProcessPoolExecutor
+        Its workers set up as the module docstring says; the caller shuts it down, or stops it
+        with :func:`stop_workers`.
+    """
     return ProcessPoolExecutor(max_workers=max_workers, mp_context=mp_context, initializer=_worker_start,
                                initargs=(os.getpid(), initializer, initargs))
 
@@ -87,10 +94,23 @@ def worker_pool(max_workers: int, *, mp_context=None, initializer: Callable | No
 
 
 def stop_workers(pool: ProcessPoolExecutor | None = None) -> int:
-    """Terminate a pool's workers (None: every child multiprocessing started here), wait, and shut it down.
+    """Terminate a pool's workers (or, with no pool, every child process that multiprocessing
+    started here), wait for them, and shut the pool down without running its queued tasks.
 
-    Queued tasks are not run. Uses the pool's private ``_processes`` and ``_result_queue`` (CPython 3.9 to
-    3.13). Returns the number of processes stopped.
+    Parameters
+    ----------
+    pool : ProcessPoolExecutor, optional
+        The pool; None: :func:`multiprocessing.active_children`.
+
+    Returns
+    -------
+    int
+        The processes stopped.
+
+    Notes
+    -----
+    A pool keeps its processes in the private ``_processes`` and its result pipe in
+    ``_result_queue`` (CPython 3.9 to 3.13; 3.14 adds ``terminate_workers``). :mod:`simtest.dataset.generate` stops its own pool with it too.
     """
     if pool is None:
         procs = multiprocessing.active_children()

@@ -22,7 +22,14 @@ FOLDERS = ("scenes", "meshes", "reports")
 
 
 def data_root() -> Path:
-    """The folder holding the bundled ``scenes/``, ``meshes/``, ``reports/``: ``simtest/_data`` or the clone's root."""
+    """The folder holding the bundled ``scenes/``, ``meshes/`` and ``reports/`` folders.
+
+    Returns
+    -------
+    Path
+        ``<site-packages>/simtest/_data`` from an installed wheel; the repository root when simtest
+        runs from a clone (an editable install, or ``python -m`` from the clone's root).
+    """
     package = Path(str(files("simtest")))
     shipped = package / "_data"
     if (shipped / "scenes").is_dir():
@@ -31,7 +38,17 @@ def data_root() -> Path:
 
 
 def bundled(*parts: str) -> Path:
-    """Path under :func:`data_root` of a bundled file or folder (may be missing), e.g. ``bundled("scenes", "suites")``.
+    """Path of a bundled file or folder, e.g. ``bundled("scenes", "suites")``.
+
+    Parameters
+    ----------
+    *parts : str
+        Path components under :func:`data_root`; the first is one of :data:`FOLDERS`.
+
+    Returns
+    -------
+    Path
+        The path (the file may be missing, e.g. a mesh not built yet).
 
     Raises
     ------
@@ -49,7 +66,19 @@ def scenes_dir() -> Path:
 
 
 def bundled_mesh_path(name: str) -> Path:
-    """Path of the bundled mesh ``name``: ``meshes/<name>.ply`` (missing until ``simtest meshes build``)."""
+    """Path of the bundled mesh ``name`` (``"colon"`` or ``"liver"``): ``meshes/<name>.ply``.
+
+    Parameters
+    ----------
+    name : str
+        Mesh name (file stem).
+
+    Returns
+    -------
+    Path
+        The path (:func:`simtest.resources.bundled`); the file may be missing (``simtest meshes
+        build`` writes it).
+    """
     return bundled("meshes", f"{name}.ply")
 
 
@@ -74,10 +103,16 @@ def bundled_scene_path(name: str) -> Path:
 
 
 def real_dir() -> Path:
-    """The folder of the bundled real frames (Hyper-Kvasir, CC BY 4.0, Borgli et al. 2020,
+    """The folder of the bundled real frames: Hyper-Kvasir frames (CC BY 4.0, Borgli et al. 2020,
     doi:10.1038/s41597-020-00622-y), their hand labels and an assumed camera file.
 
-    ``simtest/_data/real`` from a wheel, ``tests/data/real`` from a clone.
+    A clone keeps them in ``tests/data/real`` (attribution in its ``README.md``); a wheel ships the
+    same files as ``simtest/_data/real``.
+
+    Returns
+    -------
+    Path
+        ``<data_root>/real`` from an installed wheel, ``<clone>/tests/data/real`` from a clone.
     """
     shipped = data_root() / "real"
     if shipped.is_dir():
@@ -86,5 +121,15 @@ def real_dir() -> Path:
 
 
 def real_banner_path() -> Path:
-    """Path of the real-frame banner, ``hyperkvasir_banner.jpg`` in :func:`real_dir` (24 frames, 2240 x 840 JPEG)."""
+    """Path of the real-frame banner: 24 Hyper-Kvasir frames side by side.
+
+    ``hyperkvasir_banner.jpg`` in :func:`real_dir` (2240 x 840 JPEG, CC BY 4.0, Borgli et al. 2020,
+    doi:10.1038/s41597-020-00622-y), the default real frames of ``simtest simreal`` and the frame
+    of the real-image benchmark; a clone and a wheel both carry it.
+
+    Returns
+    -------
+    Path
+        The path under :func:`real_dir`.
+    """
     return real_dir() / "hyperkvasir_banner.jpg"

@@ -77,12 +77,26 @@ def _readme(config: DatasetConfig, count: int) -> str:
 
 
 def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None, variants: list | None = None) -> dict:
-    """The ``dataset.json`` card, JSON-ready and deterministic (no times, hosts or worker counts).
+    """The ``dataset.json`` card (deterministic: no times, hosts or worker counts).
 
-    ``status`` is ``"incomplete"`` while shards are written, ``"complete"`` once the manifest is;
-    ``counts`` the final counts, ``variants`` the Mitsuba variants used. The card holds the format and
-    versions, seed, count, shard layout, the canonical and as-given config with its fingerprint, the
-    bundled meshes' sha256, the channel table and the conventions.
+    Parameters
+    ----------
+    config : DatasetConfig
+        The validated config of the dataset.
+    status : str
+        ``"incomplete"`` while shards are written, ``"complete"`` once the manifest is written.
+    counts : dict, optional
+        Final counts (e.g. ``{"samples": N, ...}``); empty while incomplete.
+    variants : list of str, optional
+        Mitsuba variants the samples were rendered with.
+
+    Returns
+    -------
+    dict
+        JSON-ready card: format and version, simtest version, seed, count, shard layout, canonical
+        and as-given config with its fingerprint, sha256 of the bundled meshes used, the channel
+        table (dtype, shape, unit) and the conventions (OpenCV camera frame, pixel (u, v) with
+        integer pixel centres, mm, degrees).
     """
     cm = config.params.get("colon", {}).get("colon_mesh")  # the colon family's meshes: what it draws
     meshes = [*(() if cm is None else cm.args[:1] if cm.kind == "constant" else cm.args[0]), *{"liver"} & config.params.keys()]

@@ -68,16 +68,27 @@ class DatasetConfigError(ValueError):
 class Dist:
     """One distribution of a scalar parameter.
 
-    ``kind`` is ``"constant"``, ``"uniform"``, ``"loguniform"``, ``"normal"`` or ``"choice"``, with
-    ``args`` ``(value,)``, ``(low, high)``, ``(low, high)``, ``(mean, std, low, high)`` or
-    ``(values, weights)`` respectively (low, high, weights may be None).
+    Attributes
+    ----------
+    kind : str
+        ``"constant"``, ``"uniform"``, ``"loguniform"``, ``"normal"`` or ``"choice"``.
+    args : tuple
+        ``(value,)``, ``(low, high)``, ``(low, high)``, ``(mean, std, low, high)`` (low/high may
+        be None) or ``(values, weights)`` (weights may be None) respectively.
     """
 
     kind: str
     args: tuple
 
     def support(self) -> tuple[float, float] | None:
-        """Closed interval ``(low, high)`` holding every draw (``inf`` for an unclipped normal); None if not numeric."""
+        """Closed interval that holds every draw.
+
+        Returns
+        -------
+        (float, float) or None
+            ``(low, high)`` in the parameter's unit (``-inf``/``inf`` for an unclipped normal);
+            None for a constant or choice that is not numeric.
+        """
         if self.kind == "constant":
             v = self.args[0]
             return (v, v) if _is_number(v) else None
@@ -92,9 +103,19 @@ class Dist:
         return (min(values), max(values)) if all(_is_number(v) for v in values) else None
 
     def draw(self, rng: np.random.Generator, integer: bool = False):
-        """Draw one plain Python scalar with ``rng`` (constants draw nothing from the stream).
+        """Draw one value with ``rng`` (constants draw nothing from the stream).
 
-        ``integer``: uniform bounds inclusive, normal rounded after clipping.
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            The sample's generator.
+        integer : bool
+            Draw an integer (uniform: inclusive bounds; normal: rounded after clipping).
+
+        Returns
+        -------
+        float, int, str or bool
+            A plain Python scalar (JSON-ready).
         """
         kind, a = self.kind, self.args
         if kind == "constant":
@@ -137,10 +158,23 @@ def _uni(lo, hi) -> Dist:
 class ParamDef:
     """A parameter a dataset config may draw.
 
-    ``name`` is the config key, ``doc`` its meaning, unit and frame, ``families`` those that use it,
-    ``default`` the default :class:`Dist` per family (``"*"``: all), ``domain`` the closed interval
-    every draw must lie in (``open_low``/``open_high`` make an end exclusive), ``integer`` and
-    ``choices`` (allowed strings) its kind.
+    Attributes
+    ----------
+    name : str
+        Config key (unit suffix in the name where a unit could be mistaken).
+    doc : str
+        Meaning, unit and frame.
+    families : tuple of str
+        Families that use it.
+    default : dict
+        Default distribution per family (key ``"*"`` for all families).
+    domain : (float, float)
+        Closed interval every draw must lie in (``-inf``/``inf`` for unbounded sides);
+        ``open_low``/``open_high`` make an end exclusive.
+    integer : bool
+        Integer-valued parameter.
+    choices : tuple of str, optional
+        Allowed values of a string parameter.
     """
 
     name: str
@@ -154,7 +188,19 @@ class ParamDef:
     choices: tuple[str, ...] | None = None
 
     def default_for(self, family: str) -> Dist:
-        """Default :class:`Dist` for ``family``: its own, else the ``"*"`` one, else None (not used by it)."""
+        """Default distribution of this parameter for one family.
+
+        Parameters
+        ----------
+        family : str
+            A name in :data:`FAMILIES`.
+
+        Returns
+        -------
+        Dist or None
+            The family's own default if there is one, else the ``"*"`` default, else None
+            (the parameter is not used by that family).
+        """
         return self.default.get(family, self.default.get("*"))
 
 
@@ -302,15 +348,36 @@ class DatasetConfig:
         return -(-self.count // self.shard_size)
 
     def shard_range(self, shard: int) -> range:
-        """Sample indices of ``shard``: ``shard * shard_size`` up to ``min(count, (shard + 1) * shard_size)``."""
+        """Sample indices held by ``shard``.
+
+        Parameters
+        ----------
+        shard : int
+            Shard number in ``[0, n_shards)``.
+
+        Returns
+        -------
+        range
+            ``shard * shard_size`` up to ``min(count, (shard + 1) * shard_size)`` (exclusive);
+            empty for a shard number past the end.
+        """
         start = shard * self.shard_size
         return range(start, min(self.count, start + self.shard_size))
 
     def split_of(self, index: int) -> str:
-        """The split (``"train"``, ``"val"`` or ``"test"``) of sample ``index``, a pure function of ``(seed, index)``.
+        """The split of sample ``index``: a pure function of ``(seed, index)``.
 
-        ``sha256("simtest-split:<seed>:<index>")`` read as a fraction in [0, 1) picks the first split whose
-        cumulative fraction exceeds it, so a sample keeps its split when ``count`` grows.
+        Parameters
+        ----------
+        index : int
+            Sample index.
+
+        Returns
+        -------
+        str
+            ``"train"``, ``"val"`` or ``"test"``: ``u = sha256("<seed>:<index>")`` read as a fraction
+            in [0, 1) picks the first split whose cumulative fraction exceeds it, so a sample keeps
+            its split when ``count`` grows (and the realised fractions tend to :attr:`splits`).
         """
         digest = hashlib.sha256(f"simtest-split:{self.seed}:{int(index)}".encode()).digest()
         u = int.from_bytes(digest[:8], "big") / 2.0**64
@@ -333,7 +400,13 @@ class DatasetConfig:
                 "params": {f: {k: d.as_dict() for k, d in self.params[f].items()} for f in FAMILIES if f in used}}
 
     def fingerprint(self) -> str:
-        """sha256 of the canonical :meth:`to_dict` (sorted keys): configs that draw the same samples share it."""
+        """sha256 of the canonical form: two configs that draw the same samples share it.
+
+        Returns
+        -------
+        str
+            64 hex digits of ``sha256(json.dumps(to_dict(), sort_keys=True))`` (compact separators).
+        """
         text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
 
@@ -488,9 +561,22 @@ def _check_domain(p: ParamDef, dist: Dist, key: str, source: str) -> None:
 def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
     """Validate a config mapping (as read from TOML) into a :class:`DatasetConfig`.
 
-    ``source`` names the file in messages. Raises :class:`DatasetConfigError` (naming ``source``, the
-    key and the value) on an unknown key or family, a negative count, an impossible range, a value
-    outside a parameter's domain or a wrong type.
+    Parameters
+    ----------
+    d : dict
+        The parsed TOML document.
+    source : str
+        Name used in error messages (the file path).
+
+    Returns
+    -------
+    DatasetConfig
+
+    Raises
+    ------
+    DatasetConfigError
+        Unknown key or family, negative count, impossible range, value outside a parameter's
+        domain, wrong type; the message names ``source``, the key and the value.
     """
     if not isinstance(d, dict):
         raise _err(source, "<root>", "a config must be a table", d)
@@ -557,7 +643,19 @@ def config_from_dict(d: dict, source: str = "<dict>") -> DatasetConfig:
 def load_config(path) -> DatasetConfig:
     """Read and validate a dataset config TOML file.
 
-    Raises :class:`DatasetConfigError` on a missing file, a TOML syntax error or any validation failure.
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+
+    Returns
+    -------
+    DatasetConfig
+
+    Raises
+    ------
+    DatasetConfigError
+        Missing file, TOML syntax error, or any validation failure (naming the file and key).
     """
     path = Path(path)
     try:

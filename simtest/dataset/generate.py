@@ -373,15 +373,19 @@ def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLi
         Local processes (default: the number of CPUs; 1 runs in this process). Ignored with
         ``scheduler``.
     scheduler : str, optional
-        Address of a Dask distributed scheduler (``tcp://host:8786``); its workers need simtest and
-        the bundled meshes. The result is identical to a local run.
+        Address of a Dask distributed scheduler (``tcp://host:8786``); its workers need simtest
+        (and the bundled meshes) installed. The result is identical to a local run.
     sample_fn : callable, optional
-        Picklable ``sample_fn(config, index) -> Sample``; default
-        :func:`simtest.dataset.sample.render_sample`.
+        ``sample_fn(config, index) -> Sample``; default :func:`simtest.dataset.sample.render_sample`.
+        Must be picklable (a module-level function) for process pools and Dask.
     progress : bool
-        Show a rich progress bar on stderr.
+        Show a rich progress bar (samples/s and time left) on stderr.
     window : int, optional
         Tasks in flight (default 2 x workers + 2); bounds memory.
+
+    Returns
+    -------
+    GenerateReport
 
     Raises
     ------
@@ -390,18 +394,20 @@ def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLi
     DatasetError
         ``out_dir`` holds another config's dataset.
     DatasetWriteError
-        Something in the way of ``out_dir``, or it cannot be written; finished samples are kept.
+        A file or unrelated files in the way of ``out_dir``, or the folder cannot be written
+        (disk full, read-only); finished samples are kept.
     SampleError
-        A sample failed; complete shards and spooled samples are kept for a rerun.
+        A sample failed; complete shards and the spooled samples are kept and a rerun resumes.
     Interrupted
-        SIGTERM or Ctrl-C; workers stopped, finished samples kept for a rerun.
+        SIGTERM or Ctrl-C; workers stopped, finished samples kept, a rerun resumes.
     ValueError
         If ``workers < 1``.
 
     Notes
     -----
-    Local workers are spawned, so a script calling this with ``workers > 1`` needs the
-    ``if __name__ == "__main__":`` guard.
+    Local workers are started with the ``spawn`` method (no Mitsuba state is forked), so a script
+    calling this with ``workers > 1`` must guard its entry point with
+    ``if __name__ == "__main__":``.
     """
     config = config if isinstance(config, DatasetConfig) else load_config(config)
     sample_fn = render_sample if sample_fn is None else sample_fn

@@ -164,16 +164,23 @@ class SimtestDataset:
             Arrays (as in :class:`SimtestDataset`) and row labels ``"K"`` (3, 3) and
             ``"cam_to_world"`` (4, 4) to return as tensors.
         transform : callable, optional
-            ``transform(item) -> item`` on each item's dict of tensors; picklable for ``num_workers > 0``.
+            ``transform(item) -> item`` applied to each item's dict of tensors (augmentation,
+            resizing); must be picklable (a module-level function) for ``num_workers > 0``.
         with_record : bool
-            Also return the manifest row under ``"record"`` (batch with ``simtest.dataset.collate``).
+            Also return the manifest row under ``"record"``; batch such items with
+            ``collate_fn=simtest.dataset.collate`` (rows differ between families, so the default
+            collate cannot stack them).
+
+        Returns
+        -------
+        TorchView
 
         Raises
         ------
         KeyError
             If ``keys`` names an unknown array or label.
         simtest._lazy.MissingBackend
-            If PyTorch is not installed.
+            If PyTorch is not installed (one line: ``pip install "simtest[torch]"``).
         """
         return TorchView(self, keys=keys, transform=transform, with_record=with_record)
 
@@ -192,12 +199,24 @@ def _to_tensor(torch, key: str, a, sensor_channels: int = 1):
 
 
 class TorchView:
-    """Items of a :class:`SimtestDataset` (its ``split`` applies) as dicts of PyTorch tensors; ``keys``,
-    ``transform``, ``with_record`` as in :meth:`SimtestDataset.torch`.
+    """Items of a :class:`SimtestDataset` as dicts of PyTorch tensors (map-style dataset).
 
-    ``"sensor"`` is float32 (C, H, W) in [0, 1], C = 3 if any sample of the dataset is RGB (a grey
-    one repeated), else 1; ``"normals"`` float32 (3, H, W); other arrays as in
-    :class:`SimtestDataset`; ``"K"`` float32 (3, 3), ``"cam_to_world"`` float32 (4, 4).
+    Parameters
+    ----------
+    dataset : SimtestDataset
+        The dataset to read (its ``split`` applies).
+    keys, transform, with_record
+        See :meth:`SimtestDataset.torch`.
+
+    Notes
+    -----
+    Item layout: ``"index"`` (int, the sample's index in the dataset); ``"sensor"`` float32
+    (C, H, W) in [0, 1] (the 8-bit image / 255), C = 1 when every sample of the dataset is grey,
+    else 3 (RGB tissue samples; a grey sample's channel repeated); ``"normals"`` float32 (3, H, W)
+    in the OpenCV camera frame; ``"linear"``, ``"specular"``, ``"depth"`` (mm) float32 (H, W);
+    ``"mask"``, ``"highlight_mask"`` bool (H, W); ``"K"`` float32 (3, 3) in pixels with integer
+    pixel centres; ``"cam_to_world"`` float32 (4, 4). Samples of one batch must share a size (the
+    default config has a single resolution).
     """
 
     def __init__(self, dataset: SimtestDataset, keys: Sequence[str] = ("sensor", "normals", "mask"),
@@ -218,7 +237,15 @@ class TorchView:
         return len(self.dataset)
 
     def record(self, index: int) -> dict:
-        """The manifest row of the sample with dataset ``index`` (DatasetError if edited, IndexError if absent)."""
+        """The manifest row (labels, parameters, highlights) of the sample with dataset ``index``.
+
+        Raises
+        ------
+        DatasetError
+            If the row's labels no longer match their ``labels_sha256``.
+        IndexError
+            If no sample of this view has that index.
+        """
         for k, r in enumerate(self.dataset.rows):
             if r["index"] == index:
                 return self.dataset._row(k)
@@ -241,7 +268,16 @@ class TorchView:
 def collate(batch: list[dict]) -> dict:
     """Batch items of a :class:`TorchView` made with ``with_record=True``.
 
-    ``torch.utils.data.default_collate`` of everything but ``"record"``, which is kept as a list of rows.
+    Parameters
+    ----------
+    batch : list of dict
+        Items; tensors of one key must share a shape.
+
+    Returns
+    -------
+    dict
+        ``torch.utils.data.default_collate`` of everything but ``"record"``, and ``"record"`` as a
+        list of the rows (their keys differ between families).
     """
     default_collate = require("torch.utils.data", purpose="simtest.dataset.collate").default_collate
     rest = [{k: v for k, v in b.items() if k != "record"} for b in batch]
@@ -253,9 +289,30 @@ def collate(batch: list[dict]) -> dict:
 
 def open_dataset(root, keys: Sequence[str] | None = None, with_record: bool = True,
                  split: str | None = None) -> SimtestDataset:
-    """Open a dataset folder lazily (``simtest.dataset.open``): ``SimtestDataset(root, keys, with_record, split)``.
+    """Open a dataset folder lazily (``simtest.dataset.open``).
 
-    Raises DatasetError if ``root`` is not a complete dataset or the manifest names a shard file
-    outside it, KeyError if ``keys`` names an unknown array.
+    Parameters
+    ----------
+    root : path
+        Dataset folder (written by ``simtest dataset generate``).
+    keys : sequence of str, optional
+        Arrays to load per sample (default: all); see :class:`SimtestDataset`.
+    with_record : bool
+        Include the manifest row under ``"record"``.
+    split : str, optional
+        ``"train"``, ``"val"`` or ``"test"``: only that split's samples.
+
+    Returns
+    -------
+    SimtestDataset
+        ``.torch(keys=..., transform=...)`` gives the PyTorch view.
+
+    Raises
+    ------
+    DatasetError
+        If ``root`` is not a complete dataset (card or manifest missing or unreadable), or the
+        manifest names a shard file outside the folder.
+    KeyError
+        If ``keys`` names an unknown array.
     """
     return SimtestDataset(root, keys=keys, with_record=with_record, split=split)

@@ -108,28 +108,52 @@ class Sample:
 
 
 def sample_rng(seed: int, index: int) -> np.random.Generator:
-    """The generator of sample ``index``: ``default_rng(SeedSequence([seed, index]))``, the same in any process."""
+    """The generator of sample ``index``: ``default_rng(SeedSequence([seed, index]))``.
+
+    Parameters
+    ----------
+    seed : int
+        Root seed of the dataset (0 is valid).
+    index : int
+        Sample index.
+
+    Returns
+    -------
+    numpy.random.Generator
+        A fresh generator; the same ``(seed, index)`` gives the same stream in any process.
+    """
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
 
 
 def draw_parameters(config: DatasetConfig, index: int) -> dict[str, Any]:
     """Draw the parameters of sample ``index`` (pure function of ``(config, index)``).
 
-    Order: the family (weighted), each parameter it uses in the order of
-    :data:`simtest.dataset.config.PARAMS`, then the render seed; redrawn by the module's redraw rule.
+    The draw order is fixed: the family (weighted), then each parameter the family uses in the
+    order of :data:`simtest.dataset.config.PARAMS`, then the render seed. A pose without a
+    defined brightest point is redrawn from a child of the sample's SeedSequence (module notes,
+    "the redraw rule"; :func:`truth_problem`).
+
+    Parameters
+    ----------
+    config : DatasetConfig
+        The validated config.
+    index : int
+        Sample index, 0 <= index < config.count.
 
     Returns
     -------
     dict
-        ``{"family": str, <param>: value, ..., "render_seed": int}``, JSON-ready, units as in the
-        names; plus ``"redraw": k`` when the pose was redrawn k times.
+        ``{"family": str, <param>: value, ..., "render_seed": int}``, JSON-ready; units as in
+        the parameter names (``_mm``, ``_deg``, ``_px``); plus ``"redraw": k`` (k >= 1) when
+        the pose was redrawn k times.
 
     Raises
     ------
     IndexError
         If ``index`` is outside ``0 .. config.count - 1``.
     ValueError
-        If :data:`MAX_REDRAWS` redraws in a row have no defined truth.
+        If :data:`MAX_REDRAWS` redraws in a row have no defined truth (the config's family
+        almost never gives one).
     """
     if not 0 <= index < max(config.count, 1):
         raise IndexError(f"sample index {index} is outside 0..{config.count - 1}")
@@ -167,9 +191,23 @@ def _draw_family(config: DatasetConfig, family: str, rng: np.random.Generator) -
 def truth_problem(config: DatasetConfig, params: dict) -> str | None:
     """Why a drawn pose has no defined brightest point, or None when it has one (no rendering).
 
-    Runs the analytic truth (:func:`simtest.simulate.truth.sphere_highlight`, ``cylinder_highlight``)
-    for every light of the rig; planes and mesh families always return None. The string is the
-    :class:`~simtest.simulate.truth.HighlightTruthError` message.
+    Runs the analytic truth (:func:`simtest.simulate.truth.sphere_highlight`,
+    :func:`~simtest.simulate.truth.cylinder_highlight`) of the sample's scene for every light of
+    its rig, as the renderer will; mesh families and planes always have a defined truth (a plane's
+    BP is closed form; a mesh's BPs are searched in the render).
+
+    Parameters
+    ----------
+    config : DatasetConfig
+        The validated config.
+    params : dict
+        Drawn parameters (:func:`draw_parameters`).
+
+    Returns
+    -------
+    str or None
+        The :class:`~simtest.simulate.truth.HighlightTruthError` message (e.g. the camera inside a
+        cylinder), or None.
     """
     if params["family"] not in ("spheres", "cylinders"):
         return None
@@ -195,17 +233,37 @@ def truth_problem(config: DatasetConfig, params: dict) -> str | None:
 def build_scene(config: DatasetConfig, params: dict):
     """The scene spec of a sample from its drawn parameters (pure; no rendering).
 
-    Analytic families are in the camera frame: planes ``tilt_deg = view_angle_deg``; spheres centred
-    ``distance_mm + radius_mm`` away along ``view_angle_deg`` off the axis at ``azimuth_deg``; cylinders
-    with axis through ``(0, 0, distance_mm + radius_mm)`` tilted ``view_angle_deg`` out of the image
-    plane. Colon and liver place the camera on the bundled mesh (:func:`simtest.scene.poses.colon_pose`,
-    :func:`~simtest.scene.poses.liver_surface_pose`). The film is M x M with
-    ``K = [[f, 0, M/2 - 0.5], [0, f, M/2 - 0.5], [0, 0, 1]]``.
+    Analytic families are written in the camera frame (camera at the origin looking along +z):
+
+    - planes: ``tilt_deg = view_angle_deg``, ``azimuth_deg``, ``distance_mm``.
+    - spheres: centre at ``(distance_mm + radius_mm)`` along the direction ``view_angle_deg`` off
+      the optical axis, at ``azimuth_deg`` about it.
+    - cylinders: axis through ``(0, 0, distance_mm + radius_mm)``, tilted ``view_angle_deg`` out
+      of the image plane, at ``azimuth_deg`` in it.
+    - colon: the bundled ``meshes/<colon_mesh>.ply``; camera on its centre line at fraction ``station`` of
+      the arc length, moved ``radial_offset`` x radius off it, looking ``view_angle_deg`` off the
+      tangent toward ``azimuth_deg`` (and moved to the opposite side), image rolled by ``roll_deg``.
+    - liver: the bundled ``meshes/liver.ply``; camera ``distance_mm`` from the surface point in the
+      direction (``azimuth_deg``, ``elevation_deg``) from its centre, looking at it along a line
+      ``view_angle_deg`` off its normal (tilted toward ``roll_deg``).
+
+    Parameters
+    ----------
+    config : DatasetConfig
+        The validated config (its ``variant`` and ``source`` are used).
+    params : dict
+        Output of :func:`draw_parameters`.
+
+    Returns
+    -------
+    simtest.scene.SceneSpec
+        Lengths in mm, angles in degrees; the camera has an M x M film with
+        ``K = [[f, 0, M/2 - 0.5], [0, f, M/2 - 0.5], [0, 0, 1]]``.
 
     Raises
     ------
     FileNotFoundError
-        If the bundled colon or liver mesh is missing (``simtest meshes build``).
+        If the bundled colon or liver mesh is missing (build it with ``simtest meshes build``).
     ValueError
         If the colon mesh carries no centre line in its metadata.
     simtest.scene.SceneError
@@ -353,7 +411,18 @@ def _portable_scene(spec) -> dict:
 
 
 def mesh_sha256(family: str) -> str | None:
-    """sha256 of ``meshes/<family>.ply`` for a mesh family; None for analytic families or a missing file."""
+    """sha256 of a bundled mesh file.
+
+    Parameters
+    ----------
+    family : str
+        A mesh family samples render: ``"colon"``, ``"colon_haustral"`` or ``"liver"``.
+
+    Returns
+    -------
+    str or None
+        64 hex digits of ``meshes/<family>.ply``; None for analytic families or a missing file.
+    """
     if family not in ("colon", "colon_haustral", "liver"):
         return None
     path = bundled_mesh_path(family)
@@ -361,10 +430,22 @@ def mesh_sha256(family: str) -> str | None:
 
 
 def camera_file(result) -> dict:
-    """The camera file of a render (:func:`simtest.geometry.camera_file.save_camera` format) as a JSON object.
+    """The camera file (camera model, image size, light rig) of a render, as a JSON object.
 
-    ``{"model", "K", "dist_coeffs", "image_size": [W, H], "lights": [...]}``: the render's camera
-    model and light rig (camera frame, mm).
+    Parameters
+    ----------
+    result : simtest.render.RenderResult
+        A render.
+
+    Returns
+    -------
+    dict
+        ``{"model": "pinhole", "K", "dist_coeffs": None, "image_size": [W, H], "lights": [...]}``
+        in the format of :func:`simtest.geometry.camera_file.save_camera` (written to a ``.json``
+        file it loads with :func:`simtest.geometry.camera_file.load_camera`): the pinhole K of the
+        render (pixels, integer pixel centres) and its point light at ``result.light_pos`` (camera
+        frame, mm) with the render's intensity; falloff ``"none"`` when the dataset cancels the
+        1/d^2 falloff of the specular image, else ``"inverse_square"``.
     """
     d = result.camera_model.to_json_dict()
     d["lights"] = result.light_rig.to_json_list()
@@ -372,11 +453,29 @@ def camera_file(result) -> dict:
 
 
 def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
-    """Collect the arrays and record of a sample from a :class:`simtest.render.RenderResult`.
+    """Collect the arrays and records of a sample from a :class:`simtest.render.RenderResult`.
 
-    ``result`` is the render of :func:`build_scene` ``(config, params)``; ``config.isovalues`` set the
-    highlight mask and the isophote labels. Arrays are those of :data:`CHANNELS` (normals and depth
-    zeroed outside the mask). Raises ValueError if the sensor image is not 8-bit.
+    Parameters
+    ----------
+    config : DatasetConfig
+        The config (its isovalues set the highlight mask and the isophote labels).
+    index : int
+        Sample index.
+    params : dict
+        Output of :func:`draw_parameters`.
+    result : simtest.render.RenderResult
+        The render of :func:`build_scene` ``(config, params)``.
+
+    Returns
+    -------
+    Sample
+        Arrays as in :data:`CHANNELS` (normals zeroed and depth zeroed outside the mask) and
+        the JSON-ready record.
+
+    Raises
+    ------
+    ValueError
+        If the sensor image is not 8-bit.
     """
     mask = np.asarray(result.mask, dtype=bool)
     normals = np.where(mask[..., None], np.nan_to_num(np.asarray(result.normals, np.float32)), 0.0)
@@ -436,8 +535,25 @@ def _configure_threads() -> None:
 def render_sample(config: DatasetConfig, index: int) -> Sample:
     """Draw, build, render and label sample ``index`` of ``config``.
 
-    Bit-identical for the same config, index and Mitsuba variant, in any process. Raises IndexError
-    if ``index`` is out of range, FileNotFoundError if a bundled mesh the family needs is missing.
+    Parameters
+    ----------
+    config : DatasetConfig
+        The validated config.
+    index : int
+        Sample index, 0 <= index < config.count.
+
+    Returns
+    -------
+    Sample
+        Identical (bit for bit) whenever called with the same config, index and Mitsuba variant,
+        in any process.
+
+    Raises
+    ------
+    IndexError
+        If ``index`` is out of range.
+    FileNotFoundError
+        If a bundled mesh the family needs is missing.
     """
     params = draw_parameters(config, index)
     spec = build_scene(config, params)

@@ -70,12 +70,39 @@ class DatasetWriteError(DatasetError):
 
 
 def array_sha256(a: np.ndarray) -> str:
-    """sha256 (64 hex digits) of the C-ordered bytes of an array; dtype and shape are not hashed."""
+    """sha256 of the C-ordered bytes of an array.
+
+    Parameters
+    ----------
+    a : ndarray
+        Any shape and dtype (dtype and shape are not hashed; the manifest records them beside).
+
+    Returns
+    -------
+    str
+        64 hex digits.
+    """
     return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
 
 
 def file_sha256(path: Path) -> str:
-    """sha256 (64 hex digits) of a file, read in chunks. Raises OSError if it cannot be read."""
+    """sha256 of a file (:func:`hashlib.file_digest`, read in chunks).
+
+    Parameters
+    ----------
+    path : Path
+        File to hash.
+
+    Returns
+    -------
+    str
+        64 hex digits.
+
+    Raises
+    ------
+    OSError
+        If the file cannot be opened or read.
+    """
     with open(path, "rb") as fh:
         return hashlib.file_digest(fh, "sha256").hexdigest()
 
@@ -86,15 +113,36 @@ def json_sha256(obj) -> str:
 
 
 def labels_sha256(row: dict) -> str:
-    """sha256 of a sample's row as canonical JSON (:func:`json_sha256`), without ``labels_sha256`` and ``npz``.
+    """sha256 of a sample's labels: its row as canonical JSON, without ``labels_sha256`` and ``npz``.
 
-    JSON floats round-trip exactly, so a row read back from disk hashes as it was written.
+    Parameters
+    ----------
+    row : dict
+        A shard or manifest row (labels, parameters, pose, highlights, array hashes).
+
+    Returns
+    -------
+    str
+        64 hex digits of ``sha256(json.dumps(row, sort_keys=True, separators=(",", ":")))``; JSON
+        floats round-trip exactly, so a row read back from disk hashes as it was written.
     """
     return json_sha256({k: v for k, v in row.items() if k not in ("labels_sha256", "npz")})
 
 
 def card_sha256(card: dict) -> str:
-    """sha256 of a dataset card: its canonical JSON (:func:`json_sha256`) without the ``card_sha256`` key."""
+    """sha256 of a dataset card: its canonical JSON without the ``card_sha256`` key.
+
+    Parameters
+    ----------
+    card : dict
+        The card (``dataset.json``) as read or about to be written.
+
+    Returns
+    -------
+    str
+        64 hex digits of ``sha256(json.dumps(card, sort_keys=True, separators=(",", ":")))``
+        over every key but ``card_sha256``.
+    """
     return json_sha256({k: v for k, v in card.items() if k != "card_sha256"})
 
 
@@ -121,13 +169,25 @@ def shard_comment(shard: int, fingerprint: str, label_hashes: Iterable[str]) -> 
 
 
 def shard_path_from_row(root: Path, row: dict) -> Path:
-    """``root / row["npz"]``, the shard file of a manifest row.
+    """The shard file of a manifest row, refusing any path outside ``root/shards``.
+
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+    row : dict
+        A manifest row; its ``npz`` must read ``shards/shard-XXXXX.npz`` with the row's ``shard``.
+
+    Returns
+    -------
+    Path
+        ``root / row["npz"]``.
 
     Raises
     ------
     DatasetError
-        If ``npz`` is not exactly ``shards/shard-XXXXX.npz`` with the row's ``shard`` (absolute,
-        ``..``, another spelling); the message names the index and the path.
+        If ``npz`` is absolute, climbs out with ``..``, has another form, or names another shard
+        than the row's ``shard`` (the message names the index and the path).
     """
     rel = row.get("npz")
     m = _NPZ_REL.fullmatch(rel) if isinstance(rel, str) else None
@@ -205,10 +265,23 @@ class ShardWriter:
         return p.with_name(p.name + TMP_SUFFIX)
 
     def add(self, sample) -> bool:
-        """Queue one sample (a :class:`~simtest.dataset.sample.Sample`); write it and any queued successors.
+        """Queue one sample; write it and any queued successors that are now in order.
 
-        Returns True once the whole shard is written, renamed into place and its ``.json`` written.
-        Raises :class:`DatasetError` if the index is outside the shard or was given before.
+        Parameters
+        ----------
+        sample : simtest.dataset.sample.Sample
+            A sample whose ``index`` lies in :attr:`indices`.
+
+        Returns
+        -------
+        bool
+            True once every sample of the shard is written, the ``.npz`` renamed into place and
+            its ``.json`` written; False while samples are missing.
+
+        Raises
+        ------
+        DatasetError
+            If the sample's index is outside the shard or was given before.
         """
         if sample.index not in self.indices:
             raise DatasetError(f"sample {sample.index} does not belong to shard {self.shard}")
@@ -267,7 +340,22 @@ class ShardWriter:
 
 
 def read_shard_rows(root: Path, shard: int) -> dict | None:
-    """The JSON document of one shard, or None if missing or unreadable (an incomplete shard)."""
+    """The JSON document of one shard.
+
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+    shard : int
+        Shard number.
+
+    Returns
+    -------
+    dict or None
+        The shard's ``.json`` (keys ``shard``, ``npz``, ``npz_sha256``, ``npz_bytes``, ``indices``,
+        ``samples`` and the writer's meta), or None if it is missing or unreadable, which marks an
+        incomplete shard.
+    """
     p = shard_json_path(root, shard)
     try:
         return json.loads(p.read_text(encoding="utf-8"))
@@ -276,10 +364,26 @@ def read_shard_rows(root: Path, shard: int) -> dict | None:
 
 
 def read_shard_comment(npz: Path) -> dict:
-    """The fields ``{"shard", "config_fingerprint", "labels_sha256"}`` of a shard's zip comment.
+    """The fields of a shard file's zip comment (see :func:`shard_comment`).
 
-    Empty when the comment is not a simtest shard comment. Raises OSError, zipfile.BadZipFile or
-    NotImplementedError (a damaged header) when the file cannot be read as a zip.
+    Parameters
+    ----------
+    npz : Path
+        A shard file.
+
+    Returns
+    -------
+    dict
+        ``{"shard", "config_fingerprint", "labels_sha256"}`` as strings; empty when the comment
+        is missing or not a simtest shard comment.
+
+    Raises
+    ------
+    OSError, zipfile.BadZipFile
+        If the file cannot be read or is not a zip file.
+    NotImplementedError
+        If its central directory asks for a zip version or compression Python cannot read (a
+        damaged header reads that way).
     """
     with zipfile.ZipFile(npz) as z:
         text = z.comment.decode("ascii", errors="replace")
@@ -290,9 +394,26 @@ def read_shard_comment(npz: Path) -> dict:
 def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> list[str]:
     """What is wrong with the files of one shard (hashes and provenance; arrays not decoded).
 
-    Checks the row file names this shard, ``fingerprint`` and exactly ``indices``; that the ``.npz``
-    hashes to its ``npz_sha256`` and its zip comment matches; and every row's ``labels_sha256``.
-    Returns one line per problem, each naming the file; empty when the shard is sound.
+    Checks that the row file reads, names this shard, this dataset's config ``fingerprint`` and
+    exactly ``indices``; that the ``.npz`` exists, hashes to the row file's ``npz_sha256``, and
+    that its zip comment names the same shard, fingerprint and label hashes; and that every row's
+    ``labels_sha256`` matches its content (:func:`labels_sha256`).
+
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+    shard : int
+        Shard number.
+    fingerprint : str
+        Config fingerprint of the dataset (its card's, or the config being generated).
+    indices : range
+        Sample indices the shard must hold.
+
+    Returns
+    -------
+    list of str
+        One line per problem, each naming the file; empty when the shard is sound.
     """
     npz, js = shard_npz_path(root, shard), shard_json_path(root, shard)
     doc = read_shard_rows(root, shard)
@@ -333,7 +454,20 @@ def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> lis
 def read_card(root: Path) -> dict:
     """The dataset card ``root/dataset.json``.
 
-    Raises :class:`DatasetError` if it is missing, unreadable or not a simtest dataset card.
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+
+    Returns
+    -------
+    dict
+        The card (config, seed, version, counts, channels and units).
+
+    Raises
+    ------
+    DatasetError
+        If it is missing, unreadable or not a simtest dataset card.
     """
     p = Path(root) / CARD_NAME
     try:
@@ -351,9 +485,23 @@ def read_card(root: Path) -> dict:
 
 
 def read_manifest(root: Path) -> list[dict]:
-    """Rows of ``root/manifest.jsonl`` in index order (blank lines skipped).
+    """Rows of ``root/manifest.jsonl``, in index order.
 
-    Raises :class:`DatasetError` if the manifest is missing (dataset incomplete) or a line is not JSON.
+    Parameters
+    ----------
+    root : Path
+        Dataset folder.
+
+    Returns
+    -------
+    list of dict
+        One row per sample (labels, ``index``, ``shard``, per-array ``sha256``/``dtype``/``shape``);
+        blank lines are skipped.
+
+    Raises
+    ------
+    DatasetError
+        If the manifest is missing (the dataset is incomplete) or a line is not JSON.
     """
     p = Path(root) / MANIFEST_NAME
     try:
@@ -379,6 +527,22 @@ def write_manifest(root: Path, rows: Iterable[dict]) -> Path:
 
 
 def decode_png(a: np.ndarray) -> np.ndarray:
-    """Decode stored ``sensor_png`` bytes (uint8, shape (nbytes,)) to the uint8 sensor image (H, W[, 3])."""
+    """Decode the stored ``sensor_png`` bytes to the sensor image.
+
+    Parameters
+    ----------
+    a : ndarray of shape (nbytes,)
+        uint8 bytes of a PNG file.
+
+    Returns
+    -------
+    ndarray of shape (H, W) or (H, W, 3)
+        uint8 image, rows = v, columns = u.
+
+    Raises
+    ------
+    PIL.UnidentifiedImageError
+        If the bytes are not an image.
+    """
     with Image.open(io.BytesIO(np.asarray(a, dtype=np.uint8).tobytes())) as im:
         return np.asarray(im)

@@ -19,11 +19,30 @@ __all__ = ["contact_sheet"]
 
 
 def contact_sheet(root, out=None, count: int = 8, start: int = 0) -> Path:
-    """Write a contact sheet PNG of ``count`` samples from position ``start`` of the dataset ``root``.
+    """Write a contact sheet PNG of ``count`` samples of a dataset.
 
-    ``out`` defaults to ``<root>/contact_sheet.png`` and is replaced atomically; returns its path.
-    Raises DatasetError if ``root`` is not a complete dataset, ValueError if ``count < 1`` or ``start``
-    is outside the dataset.
+    Parameters
+    ----------
+    root : path
+        A complete dataset folder.
+    out : path, optional
+        PNG file to write (default ``<root>/contact_sheet.png``), replaced atomically.
+    count : int
+        Samples shown (one row each), from position ``start`` on.
+    start : int
+        First sample shown.
+
+    Returns
+    -------
+    Path
+        The PNG written.
+
+    Raises
+    ------
+    DatasetError
+        If ``root`` is not a complete dataset.
+    ValueError
+        If ``count < 1`` or ``start`` is outside the dataset.
     """
     ds = SimtestDataset(root, keys=("sensor", "normals", "mask", "highlight_mask"))
     if count < 1:

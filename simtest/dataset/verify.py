@@ -27,8 +27,18 @@ _MAX_PROBLEMS = 50
 
 @dataclass
 class VerifyReport:
-    """Result of :func:`verify`: the folder ``root``, the ``samples`` and ``shards`` checked, and
-    ``problems``, one line ``<path>: <what>`` each (empty when the dataset is sound).
+    """Result of :func:`verify`.
+
+    Attributes
+    ----------
+    root : Path
+        The dataset folder checked.
+    samples : int
+        Samples checked.
+    shards : int
+        Shard files checked.
+    problems : list of str
+        One line per problem (``<path>: <what>``); empty when the dataset is sound.
     """
 
     root: Path
@@ -42,7 +52,13 @@ class VerifyReport:
         return not self.problems
 
     def add(self, msg: str) -> None:
-        """Record one problem, one line ``<path>: <what>``."""
+        """Record one problem.
+
+        Parameters
+        ----------
+        msg : str
+            One line, ``<path>: <what>``.
+        """
         self.problems.append(msg)
 
 

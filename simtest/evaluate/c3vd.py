@@ -54,8 +54,16 @@ class C3VDError(ValueError):
 
 @dataclass(frozen=True)
 class C3VDFrame:
-    """The files of one frame: ``index`` (``"0000"``), ``color`` and ``normals`` paths, optional
-    ``depth`` and ``occlusion`` paths.
+    """The files of one frame.
+
+    Attributes
+    ----------
+    index : str
+        The frame number as in the file names (``"0000"``).
+    color, normals : Path
+        Colour frame and ground-truth normals.
+    depth, occlusion : Path or None
+        Optional depth and occlusion mask.
     """
 
     index: str
@@ -82,7 +90,17 @@ class GroundTruth:
 
 
 def scan_sequence(seq_dir) -> list[C3VDFrame]:
-    """List and check the frames of a sequence folder, sorted by frame number (module docstring).
+    """List and check the frames of a sequence folder (module docstring).
+
+    Parameters
+    ----------
+    seq_dir : str or Path
+        The sequence folder.
+
+    Returns
+    -------
+    list of C3VDFrame
+        Sorted by frame number.
 
     Raises
     ------

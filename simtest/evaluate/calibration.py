@@ -23,7 +23,13 @@ PENALTY_GRID = (0.01, 0.1, 1.0, 10.0, 100.0, 1000.0)
 
 
 def fit_logistic(X: np.ndarray, y: np.ndarray, penalty: float = L2_PENALTY) -> np.ndarray:
-    """L2-penalised logistic regression (BFGS); returns the intercept, then the weights."""
+    """L2-penalised logistic regression by ``scipy.optimize.minimize`` (BFGS).
+
+    Returns
+    -------
+    ndarray of shape (1 + X.shape[1],)
+        Intercept, then weights.
+    """
     A = np.c_[np.ones(len(X)), X]
     t = y.astype(np.float64)
 
@@ -83,8 +89,13 @@ def ranking_auc(conf: np.ndarray, y: np.ndarray) -> float | None:
 
 
 def select_penalty(X: np.ndarray, y: np.ndarray, group: np.ndarray, grid=PENALTY_GRID) -> float:
-    """The penalty of ``grid`` whose leave-one-frame-out confidences have the smallest mean log-loss
-    (ties: the larger).
+    """The L2 penalty of ``grid`` whose leave-one-frame-out confidences
+    (:func:`cross_validated_confidence`) have the smallest mean log-loss (ties: the larger
+    penalty).
+
+    Returns
+    -------
+    float
     """
     best, best_loss = None, np.inf
     for pen in sorted(grid, reverse=True):

@@ -184,15 +184,25 @@ class FrameScore:
 
 
 def score_frame(name: str, specularities: list[dict], structures: list[Structure]) -> tuple[FrameScore, list[dict]]:
-    """Score one frame's estimates (``estimates.json`` dicts, brightest first) against its labels.
+    """Score one frame's estimates against its labels.
+
+    Parameters
+    ----------
+    name : str
+        The frame.
+    specularities : list of dict
+        Its estimates as in ``estimates.json`` (``bp_px``, ``status``), brightest first.
+    structures : list of Structure
+        Its labels.
 
     Returns
     -------
     (FrameScore, list of dict)
-        The scores, and per candidate ``{"bp_px", "status", "on": kind | "duplicate" | "unlabelled",
-        "tp", "tp_ok", "tp_pass", "confidence", "target"}`` (``tp_pass``: a target's first match among
-        the fits in :data:`PASSING`). A rendered target of k lights takes k true positives; it is
-        found (recall) once.
+        The scores, and per candidate ``{"bp_px", "status", "on": kind | "duplicate" |
+        "unlabelled", "tp": bool, "tp_ok": bool, "tp_pass": bool, "confidence", "target"}``
+        (``tp_pass``: a target's first match among the fits that pass the checks, ``ok`` or
+        ``low_confidence``: the set ``--min-confidence`` chooses from). A rendered target of k lights' highlights takes k matches as
+        true positives (one a guide's lobe); it is found (recall) once.
     """
     bps = [s["bp_px"] for s in specularities]
     hit = match_candidates(bps, structures)
@@ -359,14 +369,21 @@ def _labelled_structure(path: Path, where: str, s, side: int) -> Structure:
 
 
 def labeller_agreement(path) -> dict | None:
-    """How far two labellers agree on the target kind: a ceiling for any detector scored against it.
+    """How far two people agree on the target kind in a hand-labelled set: a ceiling for any
+    detector scored against it.
+
+    Parameters
+    ----------
+    path : str or Path
+        A labelled set whose structures carry ``pass1`` and ``pass2`` (the two independent
+        passes) beside the resolved ``kind``.
 
     Returns
     -------
     dict or None
-        ``{"pass2_vs_pass1", "pass1_vs_resolved", "pass2_vs_resolved"}``, each ``{"precision",
-        "recall", "labelled", "truth"}`` of one pass's ``isolated`` labels against the other's; None
-        when the structures lack ``pass1`` and ``pass2``.
+        ``{"pass2_vs_pass1": {"precision", "recall"}, "pass1_vs_resolved": {...},
+        "pass2_vs_resolved": {...}}``: each pass's ``isolated`` labels scored as detections
+        against the other's (or the resolved ones); None when the passes are not recorded.
     """
     doc = json.loads(Path(path).read_text(encoding="utf-8"))
     items = [s for tile in doc.get("tiles", {}).values() for s in tile]
@@ -385,13 +402,21 @@ def labeller_agreement(path) -> dict | None:
 
 
 def rendered_frames(scene: str, *, seed: int | None = None) -> list[LabelledFrame]:
-    """A render's video frame of ``scene`` (bundled name or TOML file), labelled with its targets.
+    """A render's video frame, labelled with its targets (:func:`highlight_targets`).
+
+    Parameters
+    ----------
+    scene : str
+        A bundled scene name or a scene TOML file.
+    seed : int, optional
+        Render seed (default the scene's).
 
     Returns
     -------
     list of LabelledFrame
-        One frame; its structures are the targets (kind ``isolated``) at their peaks, with their
-        half-maximum areas. Other bright structures count as ``unlabelled`` false positives.
+        One frame; its structures are the targets (kind ``isolated``) at each target's peak,
+        with its half-maximum area. Other bright structures of a render are not labelled, so they
+        count as ``unlabelled`` false positives.
     """
     spec = load_scene(scene)
     return [_rendered_frame(spec, seed, spec.name)]
@@ -480,16 +505,23 @@ def _default_floor(frames: list[LabelledFrame], settings) -> float | None:
 
 
 def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | None = None) -> dict:
-    """Reconstruct every frame with ``settings`` (default :meth:`ReconSettings.for_frames`) and score it.
+    """Reconstruct every frame with ``settings`` (default: ``reconstruct``'s) and score it.
 
-    ``keep``, where given, receives each frame's ``Estimates`` in order (for
-    :func:`cross_validated_report`).
+    Parameters
+    ----------
+    frames : list of LabelledFrame
+        The frames and their labels.
+    settings : ReconSettings, optional
+        Default :meth:`ReconSettings.for_frames`.
+    keep : list, optional
+        Where given, each frame's estimates (``Estimates``) are appended to it, in frame order:
+        :func:`cross_validated_report` takes them instead of reconstructing the frames again.
 
     Returns
     -------
     dict
-        ``frames`` (:meth:`FrameScore.as_dict` plus ``candidates_detail``), ``pooled``, ``settings``,
-        ``statuses``, ``reliability``, ``precision_recall`` and ``default_min_confidence``.
+        ``{"frames": [FrameScore.as_dict() + {"candidates_detail": [...]}], "pooled": {...},
+        "settings": {...}}``.
     """
     settings = settings or ReconSettings.for_frames()
     scores, frames_out = [], []

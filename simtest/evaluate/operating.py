@@ -62,8 +62,19 @@ def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS, tar
 
 def precision_recall_figure(rows: list[dict], title: str = "fits that pass the checks over --min-confidence",
                             default: float | None = DEFAULT_MIN_CONFIDENCE):
-    """Precision against recall of :func:`precision_recall`'s ``rows``, one point per minimum
-    confidence, the run's ``default`` marked (None: not marked); a matplotlib Figure.
+    """Precision against recall, one point per minimum confidence, the default marked.
+
+    Parameters
+    ----------
+    rows : list of dict
+        :func:`precision_recall`'s rows.
+    title : str
+    default : float or None
+        The run's default minimum confidence, marked (None: not marked, frames of both kinds).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
     """
     fig, ax = plt.subplots(figsize=(5.2, 4.4), layout="constrained")
     pts = [r for r in rows if r["precision"] is not None and r["recall"] is not None]

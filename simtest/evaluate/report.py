@@ -57,7 +57,17 @@ def _style(name):
 
 
 def figures(results: dict) -> dict[str, bytes]:
-    """The report's figures as PNG bytes, by title, from the ``results.json`` document."""
+    """The report's figures as PNG bytes, by title.
+
+    Parameters
+    ----------
+    results : dict
+        The ``results.json`` document.
+
+    Returns
+    -------
+    dict of str to bytes
+    """
     rows = results["highlights"]
     names = list(results["estimators"])
     figs: dict[str, bytes] = {}
@@ -137,7 +147,18 @@ _DEPTH = ({"median_abs": "median |error| (%)", "median": "median error (%)", "p9
 
 
 def render_html(results: dict) -> str:
-    """The self-contained report page (HTML) of a ``results.json`` document."""
+    """The self-contained report page.
+
+    Parameters
+    ----------
+    results : dict
+        The ``results.json`` document.
+
+    Returns
+    -------
+    str
+        HTML.
+    """
     figs = figures(results)
     s = results
     parts = [

@@ -25,8 +25,17 @@ _NOT_ESTIMATORS = {"paper", "paper_selected_index"}
 
 
 def estimator_normals(spec: dict) -> dict[str, np.ndarray | None]:
-    """Every estimator's normal of one ``estimates.json`` specularity: name -> ndarray of shape
-    (3,) (camera frame), None where that estimator gave none.
+    """Every estimator's normal of one specularity dict (``estimates.json`` form).
+
+    Parameters
+    ----------
+    spec : dict
+        One entry of ``specularities``.
+
+    Returns
+    -------
+    dict of str to ndarray of shape (3,) or None
+        Estimator name -> normal (camera frame), None where that estimator gave none.
     """
     out: dict[str, np.ndarray | None] = {}
     for name, v in spec.get("normals", {}).items():
@@ -41,8 +50,19 @@ def estimator_normals(spec: dict) -> dict[str, np.ndarray | None]:
 
 
 def estimator_depths(spec: dict) -> dict[str, float]:
-    """Every depth of one ``estimates.json`` specularity, mm along its ray: the recommended
-    ``depth_mm`` as ``normal`` and each light-aware estimator's (those without one left out).
+    """Every depth of one specularity dict (``estimates.json`` form): the recommended
+    ``depth_mm`` as ``normal`` and each light-aware estimator's, mm; estimators without one are
+    left out.
+
+    Parameters
+    ----------
+    spec : dict
+        One entry of ``specularities``.
+
+    Returns
+    -------
+    dict of str to float
+        Estimator name -> distance from the camera centre to the specular point along its ray, mm.
     """
     out: dict[str, float] = {}
     if spec.get("depth_mm") is not None:
@@ -181,13 +201,20 @@ def score_highlights(frame_id: str, estimates, truth, camera: CameraModel) -> li
 
 
 def summarise(rows: list[dict], key: str = "errors_bp_deg") -> dict[str, dict]:
-    """Per-estimator statistics over the scored rows, for ``key`` ``"errors_bp_deg"`` or ``"errors_footprint_deg"``.
+    """Per-estimator statistics over the scored rows.
+
+    Parameters
+    ----------
+    rows : list of dict
+        From :func:`score_highlights`.
+    key : {"errors_bp_deg", "errors_footprint_deg"}
+        Which ground truth.
 
     Returns
     -------
     dict
         ``{name: {"n", "median_deg", "mean_deg", "p95_deg"}}`` (None statistics when n = 0),
-        ``normal`` first, ``bp_ray`` last.
+        estimators in a fixed order (``normal`` first when present, ``bp_ray`` last).
     """
     names = sorted({name for r in rows for name in r[key]}, key=lambda s: (s != "normal", s == "bp_ray", s))
     out = {}
@@ -204,10 +231,17 @@ def summarise(rows: list[dict], key: str = "errors_bp_deg") -> dict[str, dict]:
 def summarise_depth(rows: list[dict]) -> dict[str, dict]:
     """Per-estimator statistics of the depth's relative error over the scored rows.
 
+    Parameters
+    ----------
+    rows : list of dict
+        From :func:`score_highlights`.
+
     Returns
     -------
     dict
-        ``{name: {"n", "median_abs", "median", "p95_abs"}}`` (fractions); ``normal`` first.
+        ``{name: {"n", "median_abs", "median", "p95_abs"}}``: the median absolute relative error,
+        the median signed one (the bias) and the 95th percentile of the absolute one (fractions,
+        not percent); ``normal`` (the recommended depth) first.
     """
     names = sorted({name for r in rows for name in r.get("depth_rel_error", {})}, key=lambda s: (s != "normal", s))
     out = {}

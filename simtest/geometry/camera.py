@@ -103,20 +103,43 @@ def project_points(X_cam, K) -> np.ndarray:
 
 
 def bp_ray_normal(bp_uv, K) -> np.ndarray:
-    """The ``bp_ray`` estimator: minus the unit viewing ray through the brightest point (u, v).
+    """The ``bp_ray`` estimator: minus the unit viewing ray through the brightest point.
 
-    With an exactly co-located light the normal at the BP is parallel to the viewing ray, whatever the
-    curvature; biased when the BP is saturated or the light is offset. Returns a unit normal (3,) facing the
-    camera.
+    With an exactly co-located light the BP is where the surface normal is parallel to the viewing
+    ray, whatever the curvature (Notes of :func:`simtest.geometry.curvature.curvature_ratio`), so this is the normal at the BP. It is biased when
+    the BP is saturated or the light is offset.
+
+    Parameters
+    ----------
+    bp_uv : array_like of shape (2,)
+        Brightest point (u, v) in pixels.
+    K : array_like of shape (3, 3)
+        Intrinsics.
+
+    Returns
+    -------
+    ndarray of shape (3,)
+        Unit normal facing the camera, camera frame.
     """
     return -pixel_to_ray(np.asarray(bp_uv, dtype=np.float64).reshape(2), K)
 
 
 def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:
-    """Camera-to-world pose (4, 4) of an OpenCV camera at ``eye`` looking at ``target`` (world, mm).
+    """Camera-to-world pose of an OpenCV camera at ``eye`` looking at ``target``.
 
-    ``up`` is the world direction shown as image "up" (-y); the default matches Mitsuba's ``look_at`` as
-    simtest calls it. ``X_world = T[:3, :3] @ X_cam + T[:3, 3]``.
+    Parameters
+    ----------
+    eye, target : array_like of shape (3,)
+        World positions, mm.
+    up : array_like of shape (3,)
+        World direction that should appear as image "up" (-y in the OpenCV frame). The default
+        (0, -1, 0) matches Mitsuba's ``look_at(origin, target, up=(0, -1, 0))`` used by simtest.
+
+    Returns
+    -------
+    ndarray of shape (4, 4)
+        ``T`` with ``X_world = T[:3, :3] @ X_cam + T[:3, 3]``; columns are the camera x (right),
+        y (down) and z (forward) axes in world coordinates.
 
     Raises
     ------

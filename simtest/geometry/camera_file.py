@@ -51,8 +51,16 @@ class CameraFileError(IntrinsicsError):
 
 @dataclass(frozen=True)
 class CameraFile:
-    """What a camera file holds: ``model`` (CameraModel), ``lights`` (LightRig, co-located when absent) and
-    ``response`` (SensorResponse, None when absent).
+    """What a camera file holds.
+
+    Attributes
+    ----------
+    model : CameraModel
+        The camera model (with its image size when the file gives one).
+    lights : LightRig
+        The light rig; :meth:`LightRig.colocated` when the file has no ``"lights"``.
+    response : SensorResponse or None
+        The sensor's response (``"response"``); None when the file has none (linear).
     """
 
     model: CameraModel
@@ -104,7 +112,18 @@ def _model_from_dict(data: dict, where: str) -> CameraModel:
 
 
 def camera_from_dict(data: dict, where: str = "camera") -> CameraModel:
-    """A camera model from its camera-file JSON object (``"lights"`` ignored); ``where`` names it in errors.
+    """A camera model from its camera-file JSON object (the ``"lights"`` key is ignored here).
+
+    Parameters
+    ----------
+    data : dict
+        As :meth:`CameraModel.to_json_dict` writes it.
+    where : str
+        What to name in error messages.
+
+    Returns
+    -------
+    CameraModel
 
     Raises
     ------
@@ -242,7 +261,18 @@ def load_camera(path) -> CameraFile:
 
 def save_camera(path, model: CameraModel, lights: LightRig | None = None,
                 response: SensorResponse | None = None) -> Path:
-    """Write a camera file atomically; ``lights`` and ``response`` are left out when None.
+    """Write a camera file (module docstring format), atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination ``.json``.
+    model : CameraModel
+        The camera.
+    lights : LightRig or None
+        Written as ``"lights"`` when given; None leaves the key out (one co-located light).
+    response : SensorResponse or None
+        Written as ``"response"`` when given; None leaves the key out (linear).
 
     Returns
     -------
@@ -260,6 +290,22 @@ def save_camera(path, model: CameraModel, lights: LightRig | None = None,
 
 
 def save_intrinsics(path, K, dist_coeffs=None, image_size=None) -> Path:
-    """Write a pinhole camera file (:func:`save_camera` of ``PinholeCamera(K, dist_coeffs, image_size)``)."""
+    """Write a pinhole camera file (:func:`save_camera` of a :class:`PinholeCamera`).
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination ``.json``.
+    K : array_like of shape (3, 3)
+        Intrinsics, validated.
+    dist_coeffs : array_like or None
+        OpenCV distortion coefficients.
+    image_size : (W, H) or None
+        Image size in pixels.
+
+    Returns
+    -------
+    Path
+    """
     size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
     return save_camera(path, PinholeCamera(K, dist_coeffs, size))

@@ -96,11 +96,33 @@ class CameraModel(ABC):
 
     @abstractmethod
     def pixel_to_ray(self, uv) -> np.ndarray:
-        """Unit rays (N, 3), camera frame, of pixels (N, 2); NaN rows outside the model's domain."""
+        """Unit viewing rays of pixels.
+
+        Parameters
+        ----------
+        uv : array_like of shape (N, 2)
+            Pixel coordinates (u, v), pixel centres at integers.
+
+        Returns
+        -------
+        ndarray of shape (N, 3)
+            Unit rays in the camera frame; NaN rows outside the model's domain.
+        """
 
     @abstractmethod
     def ray_to_pixel(self, rays) -> np.ndarray:
-        """Pixels (N, 2) of rays (N, 3) of any positive length; NaN rows for rays the model cannot image."""
+        """Pixels of viewing rays.
+
+        Parameters
+        ----------
+        rays : array_like of shape (N, 3)
+            Directions in the camera frame, any positive length.
+
+        Returns
+        -------
+        ndarray of shape (N, 2)
+            Pixel coordinates (u, v); NaN rows for rays the model cannot image.
+        """
 
     @property
     @abstractmethod
@@ -112,14 +134,36 @@ class CameraModel(ABC):
         """The model's parameters as the camera file writes them (without ``model``/``image_size``)."""
 
     def pixel_to_ray_jacobian(self, uv) -> np.ndarray:
-        """d(unit ray)/d(u, v) at pixels (N, 2): ndarray of shape (N, 3, 2), each orthogonal to its ray."""
+        """d(unit ray)/d(u, v) at pixels.
+
+        Parameters
+        ----------
+        uv : array_like of shape (N, 2)
+            Pixels.
+
+        Returns
+        -------
+        ndarray of shape (N, 3, 2)
+            Jacobians, per pixel, of :meth:`pixel_to_ray`; each is orthogonal to its ray.
+        """
         uv = _as_uv(uv)
         d = self.pixel_to_ray(uv)
         JP = self._ray_to_pixel_jacobian_unit(d)
         return _inv(np.concatenate([JP, d[:, None, :]], axis=1))[:, :, :2]  # inverse of [J_P; d^T]
 
     def ray_to_pixel_jacobian(self, rays) -> np.ndarray:
-        """d(u, v)/d(ray) at rays (N, 3): ndarray of shape (N, 2, 3), each annihilating its ray."""
+        """d(u, v)/d(ray) at rays.
+
+        Parameters
+        ----------
+        rays : array_like of shape (N, 3)
+            Directions, any positive length.
+
+        Returns
+        -------
+        ndarray of shape (N, 2, 3)
+            Jacobians of :meth:`ray_to_pixel`; each annihilates its ray (scale invariance).
+        """
         rays = _as_rays(rays)
         n = np.linalg.norm(rays, axis=1)
         d = rays / n[:, None]
@@ -495,7 +539,13 @@ class OmnidirectionalCamera(CameraModel):
                 "c": self.c, "d": self.d, "e": self.e}
 
     def pinhole_stand_in(self) -> PinholeCamera:
-        """The pinhole ``K = [[a0, 0, cx], [0, a0, cy], [0, 0, 1]]`` with the same size."""
+        """The pinhole a user without this model would use: f = a0, same centre and size.
+
+        Returns
+        -------
+        PinholeCamera
+            ``K = [[a0, 0, cx], [0, a0, cy], [0, 0, 1]]``.
+        """
         K = np.array([[self.a[0], 0.0, self.cx], [0.0, self.a[0], self.cy], [0.0, 0.0, 1.0]])
         return PinholeCamera(K, image_size=self.image_size)
 
@@ -556,7 +606,18 @@ class OmnidirectionalCamera(CameraModel):
 
 
 def c3vd_camera() -> OmnidirectionalCamera:
-    """C3VD's omnidirectional calibration [3]_ (Olympus CF-HQ190L colonoscope), 1350 x 1080.
+    """C3VD's omnidirectional calibration (Olympus CF-HQ190L colonoscope), 1350 x 1080.
+
+    Returns
+    -------
+    OmnidirectionalCamera
+        The published intrinsics [3]_ (from the dataset's example loader), with the centre in this
+        module's convention (pixel centres at integers).
+
+    References
+    ----------
+    .. [3] T. L. Bobrow et al., "Colonoscopy 3D video dataset with paired depth from 2D-3D
+       registration", Medical Image Analysis 90, 2023, doi:10.1016/j.media.2023.102956.
 
     Examples
     --------

@@ -122,7 +122,17 @@ def conic_kind(C) -> str:
 
 
 def conic_to_ellipse(C) -> Ellipse | None:
-    """Geometric parameters of a point conic (pixels, any scale or sign), or None if it is not a real ellipse.
+    """Geometric parameters of a point conic, or None if it is not a real ellipse.
+
+    Parameters
+    ----------
+    C : array_like of shape (3, 3)
+        Point conic in pixel coordinates (any scale or sign).
+
+    Returns
+    -------
+    Ellipse or None
+        None for hyperbolas, parabolas, degenerate and imaginary conics (see :func:`conic_kind`).
 
     Raises
     ------
@@ -334,9 +344,21 @@ def _ellipses_of(C: np.ndarray):
 
 
 def unit_symmetric_cones(Cn: np.ndarray) -> np.ndarray:
-    """Symmetric parts of a stack of cones (k, 3, 3), each scaled to unit Frobenius norm.
+    """The symmetric parts of a stack of cones, each scaled to unit Frobenius norm: what
+    :func:`circle_pose` and :func:`cone_axis` decompose (the compiled estimators start from the
+    same matrices).
 
-    Non-finite where a cone is zero or not finite.
+    Parameters
+    ----------
+    Cn : ndarray of shape (k, 3, 3)
+        Normalised conics C' = K^T C K, camera frame (any scale and sign).
+
+    Returns
+    -------
+    ndarray of shape (k, 3, 3)
+        ``S / ||S||_F`` with ``S = (C' + C'^T) / 2``; non-finite (with a numpy warning unless
+        suppressed) where a cone is zero or not finite. Each cone's result depends on its own
+        entries only (the norm is numpy's ``einsum`` per cone).
     """
     Cn = 0.5 * (Cn + np.swapaxes(Cn, 1, 2))
     return Cn / np.sqrt(np.einsum("kij,kij->k", Cn, Cn))[:, None, None]

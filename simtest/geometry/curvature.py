@@ -60,10 +60,26 @@ def predicted_eigenvalue_gap(rho):
 
 
 def predicted_pose_error_deg(rho):
-    """Angle, degrees, between each circle-pose normal N+- and the cone axis (the true normal) predicted from rho.
+    """Angle between each circle-pose normal N+- and the cone axis predicted from rho, degrees.
 
-    ``asin(sqrt(gap))`` with the gap of :func:`predicted_eigenvalue_gap`, in [0, 90]: the error of the circle
-    pose on any anisotropic patch, however small the isophote.
+    Parameters
+    ----------
+    rho : float or array_like
+        :func:`curvature_ratio`.
+
+    Returns
+    -------
+    float or ndarray
+        ``asin(sqrt(gap))`` with gap from :func:`predicted_eigenvalue_gap`, in [0, 90] deg.
+
+    Notes
+    -----
+    :func:`simtest.geometry.conics.circle_pose` builds ``N+- = +-sin(phi) e1 + cos(phi) e3`` with
+    ``sin^2 phi = (l1 - l2) / (l1 - l3)``, the eigenvalue gap; e3 is the cone axis. Since the axis
+    is the true normal (see :func:`curvature_ratio`), both N+ and N- err by ``phi =
+    asin(sqrt(gap))``: the paper's circle-pose normals, oracle or not, inherit this error on any
+    anisotropic patch however small the isophote (Forsyth et al. 1991 circle pose, applied to a
+    cone that is not a circle's: https://doi.org/10.1109/34.99233).
     """
     g = np.asarray(predicted_eigenvalue_gap(rho), dtype=np.float64)
     a = np.degrees(np.arcsin(np.sqrt(np.clip(g, 0.0, 1.0))))

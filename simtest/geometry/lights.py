@@ -109,7 +109,12 @@ class Light:
 
 @dataclass(frozen=True)
 class LightRig:
-    """The lights of a scope tip, 1 to :data:`MAX_LIGHTS` of them.
+    """The lights of a scope tip, 1 to :data:`MAX_LIGHTS`.
+
+    Parameters
+    ----------
+    lights : tuple of Light
+        The lights.
 
     Raises
     ------
@@ -162,13 +167,23 @@ class LightRig:
 
 
 def check_scope_rig(rig: LightRig) -> LightRig:
-    """Return ``rig`` unchanged if it can be a scope's lights (module docstring).
+    """Check that a rig can be a scope's lights (module docstring, "Physical sense").
+
+    Parameters
+    ----------
+    rig : LightRig
+        Lights in the camera frame, mm.
+
+    Returns
+    -------
+    LightRig
+        ``rig``, unchanged.
 
     Raises
     ------
     LightRigError
-        Naming the first light :data:`MAX_AHEAD_MM` or more ahead of the lens plane or farther than
-        :data:`MAX_DISTANCE_MM` from the lens.
+        Naming the first light that lies :data:`MAX_AHEAD_MM` or more ahead of the lens plane
+        (``lights[i].position_mm[2]``) or farther than :data:`MAX_DISTANCE_MM` from the lens.
     """
     for i, light in enumerate(rig.lights):
         x, y, z = light.position_mm

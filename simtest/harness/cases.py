@@ -64,20 +64,40 @@ MESH_POSE_KEYS = ("colon_station", "liver_azimuth_deg", "mesh_view_deg", "mesh_d
 
 
 def stable_hash(key: str) -> int:
-    """A 64-bit integer from a string, stable across processes (the first 8 bytes of its SHA-256,
-    little-endian); Python's ``hash()`` is salted per process.
+    """A 64-bit integer from a string, stable across processes and machines (SHA-256).
+
+    Python's ``hash()`` is salted per process, so it cannot seed anything reproducible.
+
+    Parameters
+    ----------
+    key : str
+        Any string (UTF-8 encoded).
+
+    Returns
+    -------
+    int
+        The first 8 bytes of its SHA-256, little-endian, in [0, 2**64).
     """
     return int.from_bytes(hashlib.sha256(key.encode("utf-8")).digest()[:8], "little")
 
 
 def realisation_seed(root_seed: int, case_key: str, index: int) -> np.random.SeedSequence:
-    """The seed of realisation ``index`` of the case ``case_key`` (:attr:`Case.key`).
+    """The seed of realisation ``index`` of a case.
+
+    Parameters
+    ----------
+    root_seed : int
+        Suite root seed (0 is valid).
+    case_key : str
+        :attr:`Case.key`.
+    index : int
+        Realisation index.
 
     Returns
     -------
     numpy.random.SeedSequence
-        ``SeedSequence([root_seed, stable_hash(case_key), index])``: independent of worker count and
-        of the suite the case appears in.
+        ``SeedSequence([root_seed, stable_hash(case_key), index])``: independent of worker count
+        and of the suite the case appears in.
     """
     return np.random.SeedSequence([int(root_seed), stable_hash(case_key), int(index)])
 
@@ -159,14 +179,18 @@ class SceneSetting:
     def scene_overrides(self, mesh_pose: Callable[[MeshPose], dict] | None = None) -> dict:
         """Every dotted override of the base scene, in the order they apply.
 
-        ``mesh_pose`` (``MeshPose -> overrides``, :func:`simtest.harness.protocols.mesh_pose_overrides`) is
-        called only when the case is on a mesh.
+        Parameters
+        ----------
+        mesh_pose : callable, optional
+            ``MeshPose -> overrides`` placing the camera on the mesh
+            (:func:`simtest.harness.protocols.mesh_pose_overrides`); called only when the case
+            is on a mesh.
 
         Returns
         -------
         dict
-            :attr:`overrides`, then ``geometry.radius_mm = r`` and ``geometry.center_mm = [0, 0, d + r]``
-            (``r = radius_over_distance x distance_mm``) when set, then the mesh pose's.
+            :attr:`overrides`, then ``geometry.radius_mm = r`` and ``geometry.center_mm = [0, 0,
+            d + r]`` (``r = radius_over_distance x distance_mm``) when set, then the mesh pose's.
         """
         over = dict(self.overrides)
         if self.radius_over_distance is not None:

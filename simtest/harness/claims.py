@@ -613,12 +613,18 @@ CLAIMS = {
 def evaluate_claims(results: dict) -> list[dict]:
     """Verdicts of the paper's figure-3 claims and of our predictions on one results document.
 
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document (``cases`` with ``family``, ``colocated`` and metrics;
+        ``sweeps`` with their ``comparison``).
+
     Returns
     -------
     list of dict
-        ``{"id", "source" ("paper" or "prediction"), "claim", "holds" (bool or None), "measured",
-        "scope"}``: one per sweep check (in sweep order), then one per decidable claim of
-        :data:`CLAIMS`.
+        ``{"id", "source" ("paper" or "prediction"), "claim", "holds" (bool or None),
+        "measured", "scope"}``: first one per sweep check (in sweep order), then one per claim of
+        :data:`CLAIMS` that the suite's cases can decide.
     """
     out = []
     for sw in results["sweeps"]:

@@ -38,8 +38,23 @@ def _fmt(deg: float) -> str:
 
 
 def check_workers(workers: int | None) -> int | None:
-    """``workers`` (``-j``; 0 or None: one per core) unchanged, or exit 2 with one line when it
-    exceeds ``os.cpu_count()``.
+    """``workers`` if it is at most the machine's CPUs (``os.cpu_count()``), else exit 2.
+
+    Parameters
+    ----------
+    workers : int or None
+        ``-j/--workers`` (0 or None, the default: one per core).
+
+    Returns
+    -------
+    int or None
+        ``workers`` unchanged.
+
+    Raises
+    ------
+    typer.Exit
+        With exit code 2 and one line when ``workers`` exceeds ``os.cpu_count()`` (more
+        processes than cores only slow a run down and multiply its memory).
     """
     cpus = os.cpu_count() or 1
     if workers is not None and workers > cpus:
@@ -50,11 +65,23 @@ def check_workers(workers: int | None) -> int | None:
 def load_checked_suite(name: str, seed: int | None = None, realisations: int | None = None):
     """Load a suite with ``--seed`` / ``-n`` applied, or exit 2 with one line.
 
+    Parameters
+    ----------
+    name : str
+        Bundled suite name or path.
+    seed, realisations : int or None
+        Overrides (None keeps the suite's).
+
+    Returns
+    -------
+    simtest.harness.suite.Suite
+
     Raises
     ------
     typer.Exit
-        With exit code 2 on a bad suite, or when ``-n`` times the suite's distinct settings exceeds
-        :data:`simtest.harness.suite.MAX_TOTAL_REALISATIONS`.
+        With exit code 2 on a bad suite, or when ``-n`` times the suite's distinct settings
+        exceeds :data:`simtest.harness.suite.MAX_TOTAL_REALISATIONS` (checked before anything
+        is allocated).
     """
     try:
         s = load_suite(name)

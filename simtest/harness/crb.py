@@ -104,8 +104,18 @@ def crb_study(eps_over_d=(0.05, 0.1, 0.2, 0.3, 0.5), sigmas=(0.002, 0.005, 0.01)
 
 
 def plot_crb(rows: list[dict], path) -> Path:
-    """Write the figure to ``path`` (atomically): bound (lines) and achieved RMS (markers) of
-    :func:`crb_study`'s ``rows`` against epsilon/d, one colour per sigma.
+    """Figure: bound (lines) and achieved RMS (markers) against epsilon/d, one colour per sigma.
+
+    Parameters
+    ----------
+    rows : list of dict
+        From :func:`crb_study`.
+    path : str or Path
+        PNG file (written to a temporary name, then renamed).
+
+    Returns
+    -------
+    Path
     """
     path = Path(path)
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)

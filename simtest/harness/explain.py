@@ -78,12 +78,18 @@ def _explain_rendered(results, family, est):
 def explanations(results: dict) -> list[dict]:
     """The measured reason behind each alarming family x estimator cell, where a rule applies.
 
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document with ``families``.
+
     Returns
     -------
     list of dict
         ``{"family", "estimator", "median", "text"}`` for every cell whose pooled median exceeds
-        :data:`ALARM_DEG`, and for the paper oracle at theta = 0 when it exceeds
-        :data:`THETA0_FACTOR` times its family median; ``text`` None where no rule applies.
+        :data:`ALARM_DEG`, and for the paper protocol's oracle at theta = 0 when it exceeds
+        :data:`THETA0_FACTOR` times its family median; ``text`` is None where no rule explains
+        it (the report says so).
     """
     out = []
     for fam, f in results.get("families", {}).items():

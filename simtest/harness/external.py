@@ -41,6 +41,16 @@ class ExternalError(ValueError):
 def load_external(spec: str) -> Callable:
     """Import the function of ``spec`` (``[name=]package.module:function``).
 
+    Parameters
+    ----------
+    spec : str
+        Where the function lives; an optional ``name=`` prefix names its column.
+
+    Returns
+    -------
+    callable
+        The function.
+
     Raises
     ------
     ExternalError
@@ -62,7 +72,14 @@ def load_external(spec: str) -> Callable:
 
 
 def external_estimators(specs: Sequence[str], taken: Sequence[str]) -> tuple[tuple[str, str], ...]:
-    """Each spec's column name (default the function's) and spec, checked against the ``taken`` names.
+    """Each spec's column name and spec, checked (importable, named once, no built-in's name).
+
+    Parameters
+    ----------
+    specs : sequence of str
+        ``[name=]package.module:function`` each; the name defaults to the function's.
+    taken : sequence of str
+        The names already scored (the suite's estimators).
 
     Returns
     -------
@@ -140,8 +157,25 @@ def score_external(spec: str, frame, camera, rig, response, truths: Sequence, ma
 
 
 def with_external(suite, specs):
-    """A copy of ``suite`` that also scores the external estimators ``specs`` (extending
-    ``estimators`` and ``external``); raises ExternalError as :func:`external_estimators`.
+    """A copy of ``suite`` that also scores the external estimators ``specs``.
+
+    Parameters
+    ----------
+    suite : simtest.harness.suite.Suite
+        A loaded suite.
+    specs : sequence of str
+        ``[name=]package.module:function`` each.
+
+    Returns
+    -------
+    simtest.harness.suite.Suite
+        The same cases; ``estimators`` and ``external`` extended (``external`` survives
+        :meth:`~simtest.harness.suite.Suite.with_overrides`).
+
+    Raises
+    ------
+    ExternalError
+        A spec that does not import, or a name already scored.
     """
     ext = external_estimators(list(specs), suite.estimators)
     return dataclasses.replace(suite, estimators=suite.estimators + tuple(n for n, _ in ext),

@@ -78,19 +78,27 @@ def summarise(errors, causes) -> dict:
 
 
 def case_metrics(result) -> dict:
-    """Statistics of every estimator of one case (a ``CaseResult``), plus its diagnostics.
+    """Statistics of every estimator of one case, plus the means of its diagnostics.
+
+    Parameters
+    ----------
+    result : simtest.harness.runner.CaseResult
+        The scored rows of the case.
 
     Returns
     -------
     dict
-        ``{"end_to_end", "estimators": {name: summarise(...)}, "diagnostics": {extra: mean or
-        None}}``, means over finite values; keys ending with :data:`MEDIAN_DIAGNOSTICS` add
-        ``<key>_median``, those ending with :data:`COUNTED_DIAGNOSTICS` ``<key>_n``.
+        ``{"estimators": {name: summarise(...)}, "diagnostics": {extra: mean or None}}``; a
+        diagnostic's mean is over its finite values (eigenvalue gap, fit residual in px, BP error
+        in px, curvatures in 1/mm), None if it has none. A diagnostic whose key ends with one of
+        :data:`MEDIAN_DIAGNOSTICS` (the depth errors, %) has its median over its finite values
+        beside it, as ``<key>_median``; one ending with one of :data:`COUNTED_DIAGNOSTICS` its
+        number of finite values, as ``<key>_n``.
 
     Raises
     ------
     ValueError
-        If an estimator's errors and causes differ in length.
+        If an estimator's errors and causes differ in length (see :func:`summarise`).
     """
     est = {k: summarise(result.errors[k], result.causes[k]) for k in result.errors}
     extras = {}

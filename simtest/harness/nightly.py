@@ -62,7 +62,13 @@ _STATS = ("median", "failure_rate")
 
 
 def default_baseline_path() -> Path:
-    """The committed baseline file, ``reports/baseline.json`` (it may not exist yet)."""
+    """The committed baseline file, ``reports/baseline.json`` (:func:`simtest.resources.bundled`).
+
+    Returns
+    -------
+    Path
+        The path (the file may not exist yet).
+    """
     return bundled("reports", "baseline.json")
 
 
@@ -99,13 +105,18 @@ def _unit(metric: str) -> str:
 
 
 def metric_class(metric: str) -> str:
-    """The tolerance class of a metric ``<scope>:<name>:<estimator>:<statistic>``.
+    """The tolerance class of a metric: ``"headline_deg"``, ``"deg"`` or ``"rate"``.
+
+    Parameters
+    ----------
+    metric : str
+        ``<scope>:<name>:<estimator>:<statistic>``.
 
     Returns
     -------
     str
-        ``"rate"`` for failure rates and false positives per image; ``"headline_deg"`` for a family
-        median; ``"deg"`` for the other errors.
+        ``"rate"`` for failure rates and false positives per image; ``"headline_deg"`` for a
+        family median (an estimator's headline metric); ``"deg"`` for the other errors.
     """
     if _unit(metric) == "rate":
         return "rate"
@@ -113,13 +124,18 @@ def metric_class(metric: str) -> str:
 
 
 def metrics_of(results: dict) -> dict:
-    """The gate's metrics of a ``results.json`` document (schema 2, with ``families``).
+    """The gate's metrics of a ``results.json`` document.
+
+    Parameters
+    ----------
+    results : dict
+        A results document (schema 2, with ``families``).
 
     Returns
     -------
     dict of str to object
-        Metric name -> value as found (float, None where an estimator never succeeded, or whatever
-        the document holds).
+        Metric name -> value as found (float, None where an estimator never succeeded, or
+        whatever the document holds: :func:`invalid_values` finds the bad ones).
     """
     out = {}
     for fam, f in results.get("families", {}).items():
@@ -269,7 +285,20 @@ def check_section(section: dict, where: str) -> str | None:
 
 
 def uncovered(section: dict, names) -> list[str]:
-    """The metrics among ``names`` that the baseline section has no entry for, sorted."""
+    """The metrics among ``names`` that the baseline section has no entry for.
+
+    Parameters
+    ----------
+    section : dict
+        A baseline section (checked by :func:`check_section`).
+    names : iterable of str
+        The run's metrics (:func:`metrics_of`) or the suite's (:func:`expected_metrics`).
+
+    Returns
+    -------
+    list of str
+        Sorted; empty when the baseline covers them all.
+    """
     have = section.get("metrics") or {}
     return sorted(n for n in set(names) if n not in have)
 
@@ -277,8 +306,15 @@ def uncovered(section: dict, names) -> list[str]:
 def expected_metrics(suite) -> set[str]:
     """The metrics a run of ``suite`` will have, known before it runs.
 
-    Every case's and family's median and failure rate per estimator (false positives per image are
-    checked after the run), so that a baseline that does not cover the suite is refused up front.
+    Every case's and every family's median and failure rate per estimator (the families'
+    false positives per image, present only where the protocol detects, are checked after the
+    run), so that ``simtest nightly`` refuses a baseline that does not cover the suite before
+    spending minutes on it.
+
+    Parameters
+    ----------
+    suite : simtest.harness.suite.Suite
+        The suite about to run.
 
     Returns
     -------
@@ -295,9 +331,18 @@ def expected_metrics(suite) -> set[str]:
 
 
 def noisy_headlines(section: dict) -> list[str]:
-    """Headline metrics whose seed noise alone reaches the cap (``k_spread x spread >= cap``).
+    """Headline metrics whose seed noise alone reaches their cap: a good run may fail on them.
 
-    A good run at another seed may fail on them; the remedy is more realisations, never a larger cap.
+    Parameters
+    ----------
+    section : dict
+        A baseline section (with the measured ``spread`` of each metric).
+
+    Returns
+    -------
+    list of str
+        Names of the family medians with ``k_spread x spread >= cap``; the remedy is more
+        realisations for the sweeps of that family, never a larger cap.
     """
     pol = section.get("policy", POLICY)
     k = pol.get("k_spread", POLICY["k_spread"])
@@ -309,12 +354,21 @@ def noisy_headlines(section: dict) -> list[str]:
 def compare(section: dict, results: dict) -> list[Change]:
     """Compare a run with one suite's baseline section (checked by :func:`check_section`).
 
+    Parameters
+    ----------
+    section : dict
+        ``baseline["suites"][suite]``.
+    results : dict
+        The run's ``results.json`` document.
+
     Returns
     -------
     list of Change
-        One per metric of either, sorted by name: ``"invalid"`` for a bad value in the run,
-        ``"missing"`` for a baseline metric absent from the run, ``"regression"`` for a value that
-        became None, ``"new"`` for a run metric the baseline lacks.
+        One per metric of either, sorted by name. A NaN, infinite or non-numeric value in the
+        run is ``"invalid"``; a metric of the baseline absent from the run ``"missing"``; a
+        value that became None (never succeeds now) a ``"regression"``; a metric of the run that
+        the baseline lacks ``"new"`` (:func:`gate_summary` refuses to pass it: see
+        :func:`uncovered`).
     """
     now = metrics_of(results)
     base = section["metrics"]
@@ -345,13 +399,20 @@ def compare(section: dict, results: dict) -> list[Change]:
 
 
 def gate_summary(changes: list[Change]) -> tuple[bool, list[str], dict]:
-    """Verdict, problem lines and counts of a comparison (from :func:`compare`).
+    """Verdict, problem lines and counts of a comparison.
+
+    Parameters
+    ----------
+    changes : list of Change
+        From :func:`compare`.
 
     Returns
     -------
     (bool, list of str, dict)
-        ``passed``; one ``REGRESSION:`` line per regression and one ``INVALID:``, ``MISSING:`` or
-        ``UNCOVERED:`` line per kind of problem, naming the metrics; counts per verdict.
+        ``passed``; one line per problem (``REGRESSION: <metric>: <baseline> -> <now> (tolerance
+        <t>)``, one ``INVALID:`` line naming every NaN, infinite or non-numeric metric of the
+        run, one ``MISSING:`` line naming the metrics the run lacks, one ``UNCOVERED:`` line
+        naming the run's metrics the baseline lacks); counts per verdict.
     """
     lines = [f"REGRESSION: {c.metric}: {_f(c.baseline)} -> {_f(c.now)} (tolerance "
              f"{_f(c.tolerance)})" for c in changes if c.verdict == "regression"]
@@ -369,18 +430,41 @@ def _f(v) -> str:
 
 
 def undetectable_doublings(section: dict) -> list[str]:
-    """Metrics with a positive value and ``tolerance >= value``: doubling them would pass."""
+    """Metrics whose tolerance is not below their value: doubling them would pass the gate.
+
+    Parameters
+    ----------
+    section : dict
+        A baseline section.
+
+    Returns
+    -------
+    list of str
+        Names of metrics with a positive value and ``tolerance >= value`` (too noisy for the
+        suite's realisations, or exactly 0).
+    """
     return sorted(k for k, m in section["metrics"].items()
                   if m["value"] is not None and m["value"] > 0 and m["tolerance"] >= m["value"])
 
 
 def load_baseline(path: str | Path) -> dict:
-    """Read a baseline file: ``{"schema", "schema_version", "suites": {name: section}}``.
+    """Read a baseline file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The baseline JSON.
+
+    Returns
+    -------
+    dict
+        ``{"schema", "schema_version", "suites": {name: section}}``.
 
     Raises
     ------
     ValueError
-        If the file cannot be read, is not JSON, or has another schema or version (names the file).
+        If the file cannot be read, is not JSON, or has another schema or version; the message
+        names the file.
     """
     path = Path(path)
     try:
@@ -396,10 +480,22 @@ def load_baseline(path: str | Path) -> dict:
 
 
 def update_baseline(path: str | Path, runs: list[dict], policy: dict | None = None) -> Path:
-    """Write (or replace) the runs' suite section in the baseline file, atomically.
+    """Write (or replace) the section of the runs' suite in the baseline file, atomically.
 
-    Other suites' sections are kept; a file of an older schema is replaced. ``runs`` and ``policy`` are
-    as for :func:`baseline_section`. Returns ``path``.
+    Parameters
+    ----------
+    path : str or Path
+        The baseline file (created if missing; other suites' sections are kept; a file of an
+        older schema is replaced).
+    runs : list of dict
+        As for :func:`baseline_section`.
+    policy : dict, optional
+        Default :data:`POLICY`.
+
+    Returns
+    -------
+    Path
+        ``path``.
     """
     path = Path(path)
     try:
@@ -413,12 +509,22 @@ def update_baseline(path: str | Path, runs: list[dict], policy: dict | None = No
 def history_line(results: dict, passed: bool, counts: dict) -> dict:
     """One line of the nightly history.
 
+    Parameters
+    ----------
+    results : dict
+        The run's results document.
+    passed : bool
+        The gate's verdict.
+    counts : dict
+        Verdict counts of :func:`gate_summary`.
+
     Returns
     -------
     dict
-        ``run_id``, ``created_utc``, ``git_commit``, ``suite``, ``seed``, ``verdict`` (``"pass"`` or
-        ``"fail"``), ``counts`` (:func:`gate_summary`), ``families``: {family: {estimator: median
-        error in degrees or None}} and ``n``: {family: {estimator: highlights it succeeded on}}.
+        ``run_id``, ``created_utc``, ``git_commit``, ``suite``, ``seed``, ``verdict``
+        (``"pass"`` or ``"fail"``), ``counts``, ``families``: {family: {estimator: median
+        error in degrees or None}} and ``n``: {family: {estimator: highlights it succeeded on}}
+        (the trend figure shows it).
     """
     return {"run_id": results["run_id"], "created_utc": results["created_utc"],
             "git_commit": results["provenance"].get("git_commit"),
@@ -431,7 +537,19 @@ def history_line(results: dict, passed: bool, counts: dict) -> dict:
 
 
 def append_history(path: str | Path, line: dict) -> Path:
-    """Append one JSON line to ``history.jsonl`` under an exclusive lock (creating the folder)."""
+    """Append one JSON line to a history file, under an exclusive lock.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``history.jsonl`` (created with its folder if missing).
+    line : dict
+        From :func:`history_line`.
+
+    Returns
+    -------
+    Path
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a", encoding="utf-8") as fh:
@@ -441,7 +559,19 @@ def append_history(path: str | Path, line: dict) -> Path:
 
 
 def read_history(path: str | Path, limit: int = 60) -> list[dict]:
-    """The last ``limit`` lines of a history file, oldest first; bad lines and a missing file are skipped."""
+    """The last ``limit`` lines of a history file (oldest first); unreadable lines are skipped.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``history.jsonl``; a missing file gives an empty list.
+    limit : int
+        Lines kept.
+
+    Returns
+    -------
+    list of dict
+    """
     path = Path(path)
     if not path.is_file():
         return []
@@ -459,7 +589,19 @@ def read_history(path: str | Path, limit: int = 60) -> list[dict]:
 def changes_table(changes: list[Change], title: str, show_all: bool = False):
     """A rich Table of the metrics that moved (all of them with ``show_all``).
 
-    Columns: verdict (coloured), metric, baseline, now, delta, tolerance (4 significant digits).
+    Parameters
+    ----------
+    changes : list of Change
+        From :func:`compare`.
+    title : str
+        Table title.
+    show_all : bool
+        Also list ``"ok"`` rows.
+
+    Returns
+    -------
+    rich.table.Table
+        Verdict (coloured), metric, baseline, now, delta, tolerance (4 significant digits).
     """
     t = Table(title=title, show_lines=False)
     for col in ("verdict", "metric", "baseline", "now", "delta", "tolerance"):

@@ -214,9 +214,24 @@ class PaperRunner:
         return self.run_many([seedseq])[0]
 
     def run_many(self, seedseqs) -> list[list[dict]]:
-        """:meth:`run` of several realisations, reconstructions batched: the same rows, bit for bit.
+        """:meth:`run` of several realisations, their reconstructions batched
+        (:func:`simtest.reconstruct.reconstruct_rois`): the same rows, bit for bit.
 
-        Raises whatever a realisation raises (the caller then runs them one by one, to tell which).
+        Parameters
+        ----------
+        seedseqs : sequence of numpy.random.SeedSequence
+            The realisations' seeds.
+
+        Returns
+        -------
+        list of list of Row
+            Per realisation, its rows (as :meth:`run`).
+
+        Raises
+        ------
+        Exception
+            Whatever a realisation's simulation or reconstruction raises (the caller then runs
+            the realisations one by one, to tell which).
         """
         truth: list = []  # per realisation (normal, BP) or None; the images are not kept
 
@@ -266,11 +281,20 @@ class PaperRunner:
 def realisation_overrides(setting, seedseq: np.random.SeedSequence) -> dict:
     """The scene overrides of one realisation of a ``rendered`` case: its seeds.
 
+    Parameters
+    ----------
+    setting : simtest.harness.suite.SceneSetting
+        The case's scene setting (its ``texture``).
+    seedseq : numpy.random.SeedSequence
+        The realisation's seed (:func:`~simtest.harness.suite.realisation_seed`).
+
     Returns
     -------
     dict
-        ``{"render.seed": s0}``, and with ``setting.texture = "per_realisation"`` also
-        ``"material.texture_seed": s1``: the first two 31-bit words of ``seedseq``.
+        ``{"render.seed": s0}``, and with ``texture = "per_realisation"`` also
+        ``"material.texture_seed": s1``: ``s0`` and ``s1`` the first two 31-bit words of the
+        SeedSequence (the first is that of ``generate_state(1)``, so a case that draws no texture
+        renders as before).
     """
     words = seedseq.generate_state(2, np.uint32)
     over = {"render.seed": int(words[0]) & MAX_SEED}
@@ -312,12 +336,21 @@ class RenderedRunner:
     def run(self, seedseq: np.random.SeedSequence) -> list[dict]:
         """Render, detect, reconstruct and score one realisation.
 
+        Each in-frame ground-truth highlight is matched to the nearest detected BP within
+        ``match_px`` (pixel distance in (u, v)); an unmatched highlight fails every estimator
+        with ``"not_detected"``.
+
+        Parameters
+        ----------
+        seedseq : numpy.random.SeedSequence
+            The realisation's seed; its first 31-bit word is the render seed.
+
         Returns
         -------
         list of Row
-            One row per in-frame highlight, or one failing with ``"no_highlight_in_frame"`` if there is
-            none. Extras hold the BP error (px), the principal curvatures at the BP (1/mm) and the
-            dimensionless curvature.
+            One row per in-frame highlight (see the module docstring), or one row failing with
+            ``"no_highlight_in_frame"`` if there is none. Extras hold the BP error (px), the
+            principal curvatures at the BP (1/mm) and the dimensionless curvature.
         """
         over = realisation_overrides(self.scene_setting, seedseq)
         result = render_scene(with_overrides(self.spec, over), seed=over["render.seed"])
@@ -590,19 +623,29 @@ def _light_depth(r, light: int) -> float | None:
 def mesh_pose_overrides(p: MeshPose) -> dict:
     """Scene overrides placing the camera in or around a bundled mesh (``meshes/*.ply``).
 
-    The colon when ``p.colon_station`` is not None (:func:`simtest.scene.poses.colon_pose`), else
-    the liver (:func:`simtest.scene.poses.liver_orbit_pose`).
+    colon (``colon_station`` s in [0, 1]): :func:`simtest.scene.poses.colon_pose`, on the centre
+    line at arc length s x length, moved off it by 0.3 x the smallest wall distance of that ring,
+    looking ``mesh_view_deg`` off the tangent toward the wall on the other side. liver
+    (``liver_azimuth_deg``): :func:`simtest.scene.poses.liver_orbit_pose`, on a sphere
+    ``mesh_distance_mm`` outside its bounding sphere at that azimuth and ``liver_elevation_deg``,
+    aimed at the centre of its bounding box.
+
+    Parameters
+    ----------
+    p : simtest.harness.suite.MeshPose
+        The case's mesh pose; the colon is used when ``colon_station`` is not None.
 
     Returns
     -------
     dict
-        ``geometry.type = "mesh"``, ``geometry.path`` and the camera ``position_mm``, ``look_at_mm``
-        (mesh world frame, mm) and ``up``.
+        Dotted scene overrides: ``geometry.type = "mesh"`` (which drops the base scene's geometry,
+        :func:`simtest.scene.with_overrides`), ``geometry.path`` and the camera ``position_mm``, ``look_at_mm`` (world frame of the mesh,
+        mm) and ``up``.
 
     Raises
     ------
     FileNotFoundError, ValueError
-        If the bundled mesh is missing or unreadable.
+        If the bundled mesh is missing or unreadable (:func:`simtest.scene.poses.mesh_placement`).
     """
     if p.colon_station is not None:
         pose = colon_pose(p.colon_station, p.mesh_view_deg)
@@ -614,9 +657,21 @@ def mesh_pose_overrides(p: MeshPose) -> dict:
 
 
 def make_runner(case, estimators, external=()):
-    """The runner of ``case.protocol``: a PaperRunner or a RenderedRunner.
+    """The runner of ``case.protocol``.
 
-    ``external`` holds ``(name, "package.module:function")`` pairs (:mod:`simtest.harness.external`).
+    Parameters
+    ----------
+    case : simtest.harness.suite.Case
+        The case.
+    estimators : sequence of str
+        Keys of :data:`simtest.harness.estimators.ESTIMATORS`, and the names of ``external``.
+    external : sequence of (str, str)
+        External estimators, ``(name, "package.module:function")``
+        (:mod:`simtest.harness.external`).
+
+    Returns
+    -------
+    PaperRunner or RenderedRunner
 
     Raises
     ------

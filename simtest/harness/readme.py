@@ -28,11 +28,18 @@ END = "<!-- END what-the-testbed-shows -->"
 def committed_runs(reports: str | Path) -> list[Path]:
     """The latest committed run folder of each suite under ``reports``.
 
+    Parameters
+    ----------
+    reports : str or Path
+        The reports root (``reports/``).
+
     Returns
     -------
     list of Path
-        One ``<reports>/<suite>/<run id>`` per suite with a run folder holding a suite's
-        ``results.json`` and not ending in ``-local``, the latest by name, sorted by suite name.
+        One ``<reports>/<suite>/<run id>`` per suite that has a run folder holding a
+        ``results.json`` and not ending in ``-local`` (local runs are git-ignored), the latest by
+        name (run ids are dates or UTC times), sorted by suite name; folders of other commands'
+        reports (results without a ``suite``) are passed over.
     """
     out = []
     root = Path(reports)
@@ -144,9 +151,21 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
 
 
 def replace_section(readme_text: str, section: str) -> str:
-    """``readme_text`` with the generated section replaced between its markers (or, without them,
-    put after the ``## What the testbed shows so far`` heading in place of the prose up to the next
-    ``## `` heading).
+    """``readme_text`` with the generated section replaced (or inserted).
+
+    Parameters
+    ----------
+    readme_text : str
+        The README.
+    section : str
+        From :func:`section_text`.
+
+    Returns
+    -------
+    str
+        The text between (and including) the markers replaced; without markers, the section is
+        put right after the ``## What the testbed shows so far`` heading, replacing the prose up
+        to the next ``## `` heading.
 
     Raises
     ------
@@ -169,8 +188,16 @@ def replace_section(readme_text: str, section: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     """``python -m simtest.harness.readme [--check] [--readme PATH] [--reports DIR]``.
 
-    Returns 0 when written (or fresh with ``--check``), 1 when ``--check`` finds it stale, 2 on a
-    README without the section (one line on stderr).
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        0 when written (or fresh with ``--check``), 1 when ``--check`` finds it stale, 2 on a
+        README without the section (one line on stderr).
     """
     ap = argparse.ArgumentParser(prog="python -m simtest.harness.readme", description=__doc__.splitlines()[0])
     ap.add_argument("--readme", type=Path, default=data_root() / "README.md")

@@ -41,7 +41,18 @@ def _baseline(name: str, repeats: int, path: Path, workers, console) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command line (module docstring); 0 on success, 2 on a bad suite name or README (one line on stderr)."""
+    """Command line (see the module docstring).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        0 on success; 2 on a bad suite name or README (one line on stderr).
+    """
     root = data_root()
     ap = argparse.ArgumentParser(prog="python -m simtest.harness.regenerate", description=__doc__.splitlines()[0])
     ap.add_argument("--suite", action="append",

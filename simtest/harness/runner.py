@@ -43,7 +43,14 @@ _RUNNERS_MAX = 8
 
 
 def default_workers() -> int:
-    """Number of CPU cores available to this process (at least 1; honours CPU pinning on Linux)."""
+    """Number of CPU cores available to this process (at least 1).
+
+    Returns
+    -------
+    int
+        ``len(os.sched_getaffinity(0))`` on Linux (honours CPU pinning and cgroup sets), else
+        ``os.cpu_count()``.
+    """
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux
@@ -165,9 +172,21 @@ class ChunkResult:
 def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, stop: int, external: tuple = ()):
     """Run realisations ``start`` to ``stop - 1`` of one case (in a worker or in process).
 
-    An exception in the set-up or a realisation never propagates: those realisations fail every
-    estimator with the cause ``exception:<type>``. ``external`` is the suite's
-    :attr:`~simtest.harness.suite.Suite.external`.
+    An exception in the set-up or in a realisation never propagates: those realisations fail
+    every estimator with the cause ``exception:<type>`` and the first messages are returned.
+
+    Parameters
+    ----------
+    case : Case
+        The case.
+    estimators : tuple of str
+        Keys of :data:`simtest.harness.estimators.ESTIMATORS`.
+    root_seed : int
+        Suite root seed (0 is valid).
+    start, stop : int
+        Half-open range of realisation indices.
+    external : tuple of (str, str)
+        The suite's external estimators (:attr:`simtest.harness.suite.Suite.external`).
 
     Returns
     -------

@@ -172,17 +172,39 @@ class _SuiteFile:
 
 
 def suites_dir() -> Path:
-    """Folder of the bundled suites, ``scenes/suites`` (:func:`simtest.resources.bundled`)."""
+    """Folder of the bundled suites, ``scenes/suites``.
+
+    Returns
+    -------
+    Path
+        The folder (:func:`simtest.resources.bundled`: a clone's or an installed wheel's).
+    """
     return bundled("scenes", "suites")
 
 
 def bundled_suite_names() -> list[str]:
-    """Names (file stems) of the bundled suites, sorted; empty if the folder is missing."""
+    """Names (file stems) of the bundled suites, sorted.
+
+    Returns
+    -------
+    list of str
+        E.g. ``["default", "nightly", "quick", ...]``; empty if the folder is missing.
+    """
     return sorted(p.stem for p in suites_dir().glob("*.toml"))
 
 
 def resolve_suite_path(name_or_path: str | Path) -> Path:
-    """A bundled suite name (``"quick"``, with or without ``.toml``) or a TOML file -> the file path.
+    """A bundled suite name (``"quick"``) or a path to a TOML file -> the file path.
+
+    Parameters
+    ----------
+    name_or_path : str or Path
+        An existing file, or the stem (with or without ``.toml``) of a suite in :func:`suites_dir`.
+
+    Returns
+    -------
+    Path
+        The suite file.
 
     Raises
     ------
@@ -257,8 +279,17 @@ class Suite:
     def with_overrides(self, *, seed: int | None = None, realisations: int | None = None) -> Suite:
         """A copy with another root seed and/or number of realisations per case.
 
-        ``realisations`` replaces per-sweep values; None keeps a value. The copy is re-validated from the
-        raw document, with the same source and sha256.
+        Parameters
+        ----------
+        seed : int, optional
+            New root seed (0 is valid); None keeps the suite's.
+        realisations : int, optional
+            Realisations of every case (per-sweep values are dropped); None keeps them.
+
+        Returns
+        -------
+        Suite
+            Re-validated from the raw document, with the same source and sha256.
 
         Raises
         ------
@@ -280,7 +311,17 @@ class Suite:
 
 
 def load_suite(name_or_path: str | Path) -> Suite:
-    """Load and validate a suite file (bundled name or path); ``sha256`` is that of the file's bytes.
+    """Load and validate a suite file (bundled name or path).
+
+    Parameters
+    ----------
+    name_or_path : str or Path
+        Bundled suite name (``"quick"``) or a TOML file.
+
+    Returns
+    -------
+    Suite
+        Sweeps expanded to cases; ``sha256`` is that of the file's bytes.
 
     Raises
     ------

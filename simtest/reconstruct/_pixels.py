@@ -15,8 +15,20 @@ import numpy as np
 
 
 def rc_to_uv(rc, row0: float = 0.0, col0: float = 0.0) -> np.ndarray:
-    """Turn array coordinates (row, col) (..., 2), possibly sub-pixel, of a sub-array at (``row0``,
-    ``col0``) into full-image pixel coordinates (u, v) = (col, row), float64.
+    """Turn array coordinates (row, col) into pixel coordinates (u, v) = (col, row).
+
+    Parameters
+    ----------
+    rc : array_like of shape (..., 2)
+        Array coordinates (row, col), possibly sub-pixel, relative to a sub-array whose first
+        element is ``image[row0, col0]``.
+    row0, col0 : float, optional
+        Offset of the sub-array in the full image (the ROI origin).
+
+    Returns
+    -------
+    ndarray of shape (..., 2), float64
+        Pixel coordinates (u, v) in the full image.
 
     Examples
     --------
@@ -40,7 +52,17 @@ def image_size_wh(shape) -> tuple[int, int]:
 
 
 def uv_to_rc(uv) -> np.ndarray:
-    """Inverse of :func:`rc_to_uv` (no offset): pixel (u, v) (..., 2) to array (row, col), float64.
+    """Inverse of :func:`rc_to_uv` (no offset): pixel (u, v) to array (row, col).
+
+    Parameters
+    ----------
+    uv : array_like of shape (..., 2)
+        Pixel coordinates (u, v) = (col, row), pixel centres at integer coordinates.
+
+    Returns
+    -------
+    ndarray of shape (..., 2), float64
+        Array coordinates (row, col).
 
     Examples
     --------
@@ -82,8 +104,21 @@ class Roi(NamedTuple):
 
     @classmethod
     def around(cls, centre_uv, half_size: float, image_shape: tuple[int, ...]) -> Roi:
-        """Square ROI of half-width ``half_size`` px (rounded outward) around ``centre_uv`` (u, v), clipped
-        to ``[0, H) x [0, W)`` of ``image_shape``.
+        """Square ROI of half-width ``half_size`` px around ``centre_uv``, clipped to the image.
+
+        Parameters
+        ----------
+        centre_uv : array_like of shape (2,)
+            Centre (u, v), px.
+        half_size : float
+            Half-width, px; the rows and columns within it (rounded outward) are included.
+        image_shape : tuple of int
+            ``(H, W, ...)`` of the image.
+
+        Returns
+        -------
+        Roi
+            Half-open, clipped to ``[0, H) x [0, W)``.
         """
         h, w = image_shape[:2]
         if len(centre_uv) == 2:  # (u, v): the values uv_to_rc gives, without its arrays
@@ -96,13 +131,26 @@ class Roi(NamedTuple):
 
     @classmethod
     def coerce(cls, roi, image_shape: tuple[int, ...], where: str = "roi") -> Roi:
-        """Validate ``(row0, row1, col0, col1)`` (half-open array indices) against an image shape.
+        """Validate ``(row0, row1, col0, col1)`` against an image shape.
+
+        Parameters
+        ----------
+        roi : sequence of 4 integers
+            ``(row0, row1, col0, col1)``, half-open array indices.
+        image_shape : tuple of int
+            ``(H, W, ...)`` of the image.
+        where : str
+            Name used in the error message (e.g. the CLI option or JSON key).
+
+        Returns
+        -------
+        Roi
 
         Raises
         ------
         ValueError
-            If ``roi`` is not 4 integers, or is empty or outside the image; the message names ``where``
-            and the value.
+            If ``roi`` is not 4 integers, or is empty or outside the image; the message names
+            ``where`` and the value.
         """
         try:
             vals = [int(x) for x in roi]

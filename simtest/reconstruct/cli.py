@@ -187,7 +187,13 @@ def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, 
 
 
 def check_workers(workers: int, option: str = "--workers") -> int:
-    """``workers`` if this machine has that many CPUs, else exit 2 with one line naming both."""
+    """``workers`` if this machine has that many CPUs (``os.cpu_count()``), else exit 2.
+
+    Raises
+    ------
+    typer.Exit
+        With exit status 2 and one line naming the value and the CPU count.
+    """
     cpus = os.cpu_count() or 1
     if workers > cpus:
         fail(f"{option} {workers}: more than the {cpus} CPU(s) of this machine (0: one per CPU)", BAD_INPUT)
@@ -246,8 +252,17 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
 
 
 def summary_line(estimates, paths, detection: dict | None = None) -> str:
-    """One summary line of a reconstruction: counts per status, the components detection left out
-    (``detection``'s ``not_examined``, whenever any), and the files written (``paths``).
+    """One summary of a reconstruction: counts per status, what detection left out, the outputs.
+
+    Parameters
+    ----------
+    estimates : list of SpecularityEstimate
+        The frame's estimates.
+    paths : list of Path
+        The files written.
+    detection : dict, optional
+        :meth:`~simtest.reconstruct.result.Reconstruction.detection_record`; its ``not_examined``
+        components are counted in the line whenever there are any (no silent cap).
     """
     counts = Counter(e.status for e in estimates)
     n_ok = counts.pop("ok", 0)
@@ -278,9 +293,19 @@ def _camera_of(doc: dict, intrinsics: Path | None):
 
 
 def load_truth_points(path: Path, camera) -> "np.ndarray":  # noqa: F821
-    """Ground-truth surface points (H, W, 3), mm, camera frame, from a render's ``ground_truth.npz``
-    (``position``, else z-``depth``) or a C3VD ``NNNN_depth.tiff`` (``mm = v / 65535 * 100``, 0 and
-    65535 invalid), depths back-projected through ``camera``.
+    """Ground-truth surface points (H, W, 3), mm, camera frame, from a file.
+
+    Parameters
+    ----------
+    path : Path
+        A render's ``ground_truth.npz`` (its ``position``, else its z-``depth``), or a C3VD
+        ``NNNN_depth.tiff`` (16-bit z-depth, ``mm = v / 65535 * 100``, 0 and 65535 invalid).
+    camera : CameraModel
+        Rays for back-projecting a depth map.
+
+    Returns
+    -------
+    ndarray of shape (H, W, 3)
 
     Raises
     ------
@@ -317,8 +342,22 @@ def _size_of_estimates(doc: dict) -> tuple[int, int] | None:
 
 def check_view_sizes(doc: dict, estimates: Path, camera=None, intrinsics: Path | None = None,
                      truth_points=None, truth: Path | None = None) -> None:
-    """Refuse a camera (its ``image_size``) or a ground truth (one point per pixel) made for another
-    image than the estimates document ``doc``'s ``image_shape``.
+    """Refuse a camera or a ground truth made for another image than the estimates'.
+
+    Parameters
+    ----------
+    doc : dict
+        The estimates document (its ``image_shape`` [H, W]).
+    estimates : Path
+        Its file, for messages.
+    camera : CameraModel, optional
+        From ``--intrinsics``: its ``image_size`` (W, H), when it has one, must be the image's.
+    intrinsics : Path, optional
+        The camera file, for messages.
+    truth_points : ndarray of shape (H, W, 3), optional
+        The ground truth: one point per pixel of the image.
+    truth : Path, optional
+        Its file, for messages.
 
     Raises
     ------

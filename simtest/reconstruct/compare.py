@@ -118,9 +118,19 @@ def compare_estimates(before: list[dict], after: list[dict], *, name: str = "",
                       tol: AccuracyTolerance = ACCURACY) -> Comparison:
     """Compare one frame's estimates before and after a change.
 
-    ``before``, ``after``: rows with ``"bp_px"`` ([u, v] px), ``"status"`` and ``"normals"``
-    ({estimator: [x, y, z] or None}), as ``estimates.json``'s specularities; ``name`` the frame, for
-    the status-change lines; ``tol``'s ``match_px`` pairs the candidates. Returns a :class:`Comparison`.
+    Parameters
+    ----------
+    before, after : list of dict
+        Rows with ``"bp_px"`` ([u, v] px), ``"status"`` and ``"normals"`` ({estimator: [x, y, z]
+        or None}, unit vectors in the camera frame), as ``estimates.json``'s specularities.
+    name : str
+        The frame, for the lines of :attr:`Comparison.status_changes`.
+    tol : AccuracyTolerance
+        Its ``match_px`` pairs the candidates.
+
+    Returns
+    -------
+    Comparison
     """
     pairs, gone, new = _pairs(before, after, tol.match_px)
     cmp = Comparison(candidates=max(len(before), len(after)))

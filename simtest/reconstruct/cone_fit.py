@@ -86,8 +86,19 @@ class ConeFit:
 
 
 def rotations_to_z(d: np.ndarray) -> np.ndarray:
-    """Rotations R (k, 3, 3) with ``R d = |d| e_z``, one per direction d (k, 3), det +1, the image x
-    axis kept as close to the camera's x as possible.
+    """Rotations R with ``R d = |d| e_z``, one per direction.
+
+    Parameters
+    ----------
+    d : ndarray of shape (k, 3)
+        Non-zero directions, camera frame.
+
+    Returns
+    -------
+    ndarray of shape (k, 3, 3)
+        Proper rotations (det +1), each from its own direction only; rows are the fit frame's
+        axes in camera coordinates, the image x axis kept as close to the camera's x as possible
+        (so plane pixels read like image pixels).
     """
     z = d / np.linalg.norm(d, axis=1, keepdims=True)
     ref = np.where(np.abs(z[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
@@ -104,14 +115,39 @@ _IDENTITY.setflags(write=False)
 
 
 def fit_frame(camera: CameraModel, bp_ray) -> FitFrame:
-    """The fit plane (:class:`FitFrame`) of a highlight of ``camera`` with unit BP ray ``bp_ray`` (3,),
-    camera frame (z may be <= 0 for a wide lens).
+    """The fit plane of a highlight (module Notes).
+
+    Parameters
+    ----------
+    camera : CameraModel
+        The camera.
+    bp_ray : array_like of shape (3,)
+        Unit viewing ray of the brightest point, camera frame (z may be <= 0 for a wide lens).
+
+    Returns
+    -------
+    FitFrame
     """
     return fit_frames(camera, np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
 
 
 def fit_frames(camera: CameraModel, bp_rays: np.ndarray) -> list[FitFrame]:
-    """:func:`fit_frame` of several highlights (unit BP rays (k, 3)) of one camera at once."""
+    """:func:`fit_frame` of several highlights of one camera at once.
+
+    Parameters
+    ----------
+    camera : CameraModel
+        The camera.
+    bp_rays : ndarray of shape (k, 3)
+        Unit viewing rays of the brightest points, camera frame.
+
+    Returns
+    -------
+    list of FitFrame
+        One per ray: the image plane for a pinhole; otherwise the plane normal to the ray with
+        the focal length ``det(J J^T)^(1/4)`` of the model's ray-to-pixel Jacobian J there (1 where
+        the model has none), in one call of the model for all rays.
+    """
     d = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
     if isinstance(camera, PinholeCamera):
         return [FitFrame(camera, _IDENTITY, camera.K, True)] * len(d)

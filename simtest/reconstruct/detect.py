@@ -159,8 +159,17 @@ def validate_image(image, where: str = "image") -> np.ndarray:
 
 
 def default_full_scale(image: np.ndarray) -> float:
-    """Full scale of a validated image, the level relative thresholds refer to: the dtype maximum for
-    unsigned integers (255, 65535), ``max(1, image.max())`` for floats.
+    """Full scale of an image: the level relative thresholds refer to.
+
+    Parameters
+    ----------
+    image : ndarray
+        A validated image (:func:`validate_image`).
+
+    Returns
+    -------
+    float
+        Dtype maximum for unsigned integer images (255, 65535), ``max(1, image.max())`` for floats.
     """
     if image.dtype.kind == "u":
         return float(np.iinfo(image.dtype).max)
@@ -233,9 +242,21 @@ def peak_uv(values: np.ndarray, r: int, c: int, mask: np.ndarray | None = None) 
 
 
 def ellipticity(mask: np.ndarray) -> float:
-    """Ellipticity ``area / (4 pi sqrt(det Sigma))`` of a bool mask (H, W), ``Sigma`` the second moments
-    of its pixels as unit squares: 1 for a filled ellipse, about 0.83 for an equilateral triangle,
-    lower for rings and crescents; NaN for fewer than 3 pixels or a singular ``Sigma``.
+    """Ellipticity ``area / (4 pi sqrt(det Sigma))`` of a binary mask.
+
+    ``Sigma`` is the second-moment matrix of the pixels, each a unit square (its own 1/12 per
+    axis added to the spread of the centres).
+
+    Parameters
+    ----------
+    mask : ndarray of shape (H, W), bool
+        The component.
+
+    Returns
+    -------
+    float
+        1 for a filled ellipse, about 0.83 for an equilateral triangle, lower for rings and
+        crescents; NaN for fewer than 3 pixels or a singular ``Sigma``.
     """
     rr, cc = np.nonzero(mask)
     n = rr.size

@@ -267,12 +267,38 @@ def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:
 
 
 def image_smooth_sigma_px(image: np.ndarray, full_scale: float) -> float:
-    """:func:`auto_smooth_sigma_px` of a validated image's luma, read on the noise estimate's rows only."""
+    """:func:`auto_smooth_sigma_px` of a validated image's luma, computed on the rows the noise
+    estimate reads only (the luma is per pixel, so these are the same values as those rows of
+    the whole image's luma; a 1350 x 1080 RGB frame needs 49 rows of it, not 1080).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        A validated image (:func:`validate_image`).
+    full_scale : float
+
+    Returns
+    -------
+    float
+        Sigma in px, >= 0.
+    """
     return _sigma_for_noise(image_noise_sigma(image) / full_scale)
 
 
 def image_noise_sigma(image: np.ndarray) -> float:
-    """:func:`noise_sigma` of a validated image's luma (OpenCV's gray), read on its rows only."""
+    """:func:`noise_sigma` of a validated image's luma (OpenCV's gray of an RGB image), read on
+    the rows the estimate reads only (what :func:`image_smooth_sigma_px` measures).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        A validated image (:func:`validate_image`).
+
+    Returns
+    -------
+    float
+        Image units, >= 0.
+    """
     return _noise_sigma_of_rows(_gray_native(_noise_rows(image)))
 
 

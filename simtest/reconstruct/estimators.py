@@ -69,8 +69,19 @@ _RIGHT_CONE = np.diag([1.0, 1.0, -1.0])
 
 
 def face_reference(n: np.ndarray, ray: np.ndarray) -> np.ndarray:
-    """Flip normals ``n`` (..., 3) so that ``n . ray <= 0`` (facing the camera along the viewing
-    directions ``ray`` (..., 3), z > 0, broadcast against ``n``); each ``n`` or ``-n``, camera frame.
+    """Flip ``n`` so that ``n . ray <= 0`` (faces the camera along that viewing ray).
+
+    Parameters
+    ----------
+    n : ndarray of shape (..., 3)
+        Normal(s), camera frame.
+    ray : ndarray of shape (..., 3)
+        Viewing direction(s) from the camera (z > 0), camera frame, broadcast against ``n``.
+
+    Returns
+    -------
+    ndarray of shape (..., 3)
+        Each ``n`` or ``-n`` (same length).
     """
     n = np.asarray(n, dtype=np.float64)
     d = np.sum(n * np.asarray(ray, dtype=np.float64), axis=-1, keepdims=True)

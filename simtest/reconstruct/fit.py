@@ -105,7 +105,16 @@ def fit_ellipse(points_uv) -> EllipseFit | Failure:
 
 
 def point_sets(points_list) -> list[np.ndarray]:
-    """Point sets (N_i, 2) as float64 arrays (views where they already are).
+    """Point sets as float64 arrays (views where they already are).
+
+    Parameters
+    ----------
+    points_list : sequence of array_like of shape (N_i, 2)
+        Points (u, v), px.
+
+    Returns
+    -------
+    list of ndarray of shape (N_i, 2), float64
 
     Raises
     ------

@@ -24,10 +24,22 @@ LUMA_FRAME_MIN_HIGHLIGHTS = 32
 
 
 def validate_dist_coeffs(dist_coeffs) -> np.ndarray | None:
-    """Check OpenCV distortion coefficients ``(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tx, ty]]]])``.
+    """Check OpenCV distortion coefficients.
 
-    Returns them as float64 (4, 5, 8, 12 or 14 of them), or None if None or all zero; ValueError for
-    another count or a value not finite.
+    Parameters
+    ----------
+    dist_coeffs : array_like or None
+        ``(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tx, ty]]]])`` in OpenCV order.
+
+    Returns
+    -------
+    ndarray of shape (4,), (5,), (8,), (12,) or (14,), or None
+        The coefficients as float64; None if ``dist_coeffs`` is None or all zero (no distortion).
+
+    Raises
+    ------
+    ValueError
+        If the count is not 4, 5, 8, 12 or 14 or a value is not finite.
     """
     if dist_coeffs is None:
         return None
@@ -121,8 +133,23 @@ class _Frame:
 
 
 def as_camera(K, dist_coeffs=None) -> CameraModel:
-    """The camera model of a ``reconstruct`` call: a model as given, or a pinhole from K and
-    ``dist_coeffs`` (which must be None with a model). ValueError for invalid K or coefficients.
+    """The camera model of a ``reconstruct`` call: a model as given, or a pinhole from K.
+
+    Parameters
+    ----------
+    K : CameraModel or array_like of shape (3, 3)
+        A camera model, or pinhole intrinsics.
+    dist_coeffs : array_like or None
+        OpenCV distortion of a pinhole K; must be None with a camera model (which holds its own).
+
+    Returns
+    -------
+    CameraModel
+
+    Raises
+    ------
+    ValueError
+        Invalid K or coefficients, or coefficients beside a camera model.
     """
     if isinstance(K, CameraModel):
         if dist_coeffs is not None:

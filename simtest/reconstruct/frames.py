@@ -112,12 +112,22 @@ def is_sequence(path) -> bool:
 
 
 def open_frames(path) -> FrameSource:
-    """The frames of a folder (:data:`FRAME_SUFFIXES`, sorted by name) or a video file.
+    """The frames of a folder or a video file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A folder of image files (:data:`FRAME_SUFFIXES`, sorted by name) or a video file.
+
+    Returns
+    -------
+    FrameSource
 
     Raises
     ------
     ValueError
-        Naming the path: it does not exist, a folder holds no frame, or OpenCV cannot open the video.
+        Naming the path: it does not exist, a folder holds no frame, or OpenCV cannot open the
+        video.
     """
     path = Path(path)
     if path.is_dir():
@@ -141,13 +151,25 @@ def open_frames(path) -> FrameSource:
 
 
 def same_size_frames(source: FrameSource, camera=None) -> Iterator[tuple[int, str, np.ndarray]]:
-    """The frames of ``source`` (as iterating it yields them), each checked to have the first frame's
-    size and the ``image_size`` (W, H) of ``camera`` where it has one.
+    """The frames of ``source``, each checked to have the first frame's size (and the camera's).
+
+    Parameters
+    ----------
+    source : FrameSource
+        From :func:`open_frames`.
+    camera : CameraModel or ndarray, optional
+        Its ``image_size`` (W, H), when it has one, is every frame's required size.
+
+    Yields
+    ------
+    (int, str, ndarray)
+        As iterating ``source`` does.
 
     Raises
     ------
     InputError
-        At the first frame of another size, naming its file, its size and the expected one.
+        At the first frame of another size, naming its file (or ``video:<index>``), its size and
+        the first frame's (or the camera's): one camera cannot describe frames of two sizes.
     """
     cam_wh = getattr(camera, "image_size", None)
     cam_wh = None if cam_wh is None else tuple(int(v) for v in cam_wh)

@@ -57,8 +57,16 @@ class LibraryMessages:
 
 @contextmanager
 def quiet_stderr() -> Iterator[LibraryMessages]:
-    """Capture what C libraries write to file descriptor 2 meanwhile (the whole process: keep the block
-    to the library call); yields :class:`LibraryMessages`, whose ``text`` is filled on exit.
+    """Capture what is written to file descriptor 2 (C libraries: libpng, FFmpeg, VTK) meanwhile.
+
+    The descriptor is pointed at a temporary file and restored on exit, whatever happens; Python's
+    ``sys.stderr`` is flushed first so that nothing of ours is captured. The whole process is
+    affected meanwhile, so keep the block to the library call.
+
+    Yields
+    ------
+    LibraryMessages
+        Its ``text`` holds the captured bytes (decoded, errors replaced) once the block ends.
     """
     messages = LibraryMessages()
     try:
@@ -239,8 +247,15 @@ C3VD_DEPTH_RANGE_MM = 100.0
 
 
 def read_tiff(path, what: str, error: type[Exception] = ValueError) -> np.ndarray:
-    """A TIFF file's array as tifffile reads it; ``error`` raised with one line naming the file,
-    ``what`` it holds and tifffile's reason when it cannot be read.
+    """A TIFF file's array as tifffile reads it (any bit depth and channel count).
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        What the file holds ("depth", "normals"), for the message.
+    error : type of Exception
+        Raised, with one line naming the file, ``what`` and tifffile's reason, when it cannot be read.
     """
     try:
         return require("tifffile").imread(path)

@@ -104,8 +104,24 @@ def _light_aware_dict(la: dict) -> dict:
 
 
 def estimate_to_dict(est, include_points: bool = False) -> dict:
-    """One :class:`~simtest.reconstruct.assemble.SpecularityEstimate` as a schema-2 dict, JSON-ready
-    (missing values None, never NaN); ``include_points`` adds each isophote's ``points_px``.
+    """One :class:`~simtest.reconstruct.assemble.SpecularityEstimate` as a schema-2 dict.
+
+    Parameters
+    ----------
+    est : SpecularityEstimate
+        One estimate.
+    include_points : bool
+        Also write each isophote's contour points (``points_px``, (N, 2) lists).
+
+    Returns
+    -------
+    dict
+        JSON-ready (no NaN: missing values are None): ``bp_px`` [u, v], ``bp_intensity``,
+        ``saturated``, ``roi`` [row0, row1, col0, col1], ``status``, ``detail``, ``normals``
+        (``paper`` 2 x 3, ``paper_selected``, ``paper_selected_index``, ``cone_axis``,
+        ``joint_cone_axis``, ``bp_ray``: unit, OpenCV camera frame, facing the camera),
+        ``ellipse`` (px, degrees), ``conic`` (3 x 3), ``fit_residual_px``, ``eigenvalue_gap`` and
+        ``isophotes``.
     """
     p = est.primary
     sel_idx = None if p is None else p.paper_selected_index
@@ -171,19 +187,28 @@ _ORJSON_OPTIONS = _orjson.OPT_SERIALIZE_NUMPY
 
 
 def dumps(obj, *, indent: bool = False) -> bytes:
-    """``obj`` as JSON bytes (UTF-8) by orjson, numbers written to round-trip; NaN and infinity refused.
+    """``obj`` as JSON bytes (UTF-8), written by orjson; NaN and infinity refused.
 
     Parameters
     ----------
     obj : dict or list
-        Dicts with str keys, lists, tuples, str, int, float, bool, None and numpy arrays or scalars.
+        Made of dicts with str keys, lists, tuples, str, int, float, bool, None and numpy arrays
+        or scalars.
     indent : bool
-        Two spaces per level and a final newline; else one compact line without a newline.
+        Two spaces per level and a final newline (``estimates.json``); else one compact line
+        without a newline (a line of ``estimates.jsonl``).
+
+    Returns
+    -------
+    bytes
+        The JSON text. Numbers are written to round-trip (the shortest digits that read back as
+        the same float64).
 
     Raises
     ------
     ValueError
-        Naming the key path of the first value that is not finite.
+        Naming the first value that is not finite (its key path): JSON has no NaN, and a missing
+        value is written as None by the caller, never left as NaN.
     """
     bad = _not_finite_at(obj, "")
     if bad is not None:
@@ -285,7 +310,17 @@ def write_estimates(path, estimates, *, K, image=None, image_shape=None, dist_co
 
 
 def read_estimates(path) -> dict:
-    """Read and check an ``estimates.json`` file (schema 1 or 2); ``K`` comes back as a (3, 3) ndarray.
+    """Read and check an ``estimates.json`` file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file written by :func:`write_estimates`.
+
+    Returns
+    -------
+    dict
+        The document (schema 1 or 2, as written), with ``K`` as a (3, 3) ndarray.
 
     Raises
     ------

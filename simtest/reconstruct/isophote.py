@@ -56,8 +56,19 @@ class Isophote:
 
 
 def polygon_contains(polygon_uv: np.ndarray, points_uv) -> np.ndarray | bool:
-    """Even-odd test: which of ``points_uv`` ((2,) or (M, 2)) lie inside the closed polygon ``polygon_uv``
-    (N, 2, no repeated end point); one bool for a single point, else (M,).
+    """Even-odd test: which of ``points_uv`` lie inside the closed polygon ``polygon_uv`` (N, 2)?
+
+    Parameters
+    ----------
+    polygon_uv : ndarray of shape (N, 2)
+        Vertices, without a repeated end point.
+    points_uv : array_like of shape (2,) or (M, 2)
+        Query points.
+
+    Returns
+    -------
+    bool or ndarray of shape (M,)
+        One bool for a single point, else one per point.
     """
     pts = np.asarray(points_uv, dtype=np.float64)
     single = pts.ndim == 1
@@ -75,7 +86,18 @@ def polygon_contains(polygon_uv: np.ndarray, points_uv) -> np.ndarray | bool:
 
 
 def polygon_area(polygon_uv: np.ndarray) -> float:
-    """Unsigned shoelace area, px^2, of a closed polygon (N, 2) (0 for fewer than 3 distinct vertices)."""
+    """Unsigned shoelace area of a closed polygon.
+
+    Parameters
+    ----------
+    polygon_uv : ndarray of shape (N, 2)
+        Vertices (u, v) in px, without a repeated end point (the closing edge is implied).
+
+    Returns
+    -------
+    float
+        Area in px^2 (>= 0; 0 for fewer than 3 distinct vertices).
+    """
     x = polygon_uv[:, 0]
     y = polygon_uv[:, 1]
     return 0.5 * abs(float(np.dot(x[:-1], y[1:]) - np.dot(y[:-1], x[1:]) + x[-1] * y[0] - y[-1] * x[0]))

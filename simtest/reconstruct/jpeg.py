@@ -99,9 +99,18 @@ def _blocks(image: np.ndarray, dy: int, dx: int, max_blocks: int) -> np.ndarray:
 
 
 def dct_blocks(blocks: np.ndarray) -> np.ndarray:
-    """Orthonormal 2-D DCT-II of 8 x 8 blocks (N, 8, 8) after JPEG's level shift (minus 128).
+    """Orthonormal 2-D DCT-II of 8 x 8 blocks after JPEG's level shift (minus 128).
 
-    Returns (N, 64) float32, frequency ``k = 8 u + v`` (u vertical): JPEG's FDCT output before quantisation.
+    Parameters
+    ----------
+    blocks : ndarray of shape (N, 8, 8)
+        Grey levels.
+
+    Returns
+    -------
+    ndarray of shape (N, 64), float32
+        Coefficients, frequency ``k = 8 u + v`` (u vertical, v horizontal), equal to
+        OpenCV's ``dct`` of ``block - 128`` and to JPEG's FDCT output before quantisation.
     """
     b = np.asarray(blocks, np.float32).reshape(-1, BLOCK * BLOCK) - np.float32(128.0)
     # D b D^T of each block as one product with D (x) D

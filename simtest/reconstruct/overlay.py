@@ -45,7 +45,18 @@ MAX_OVERLAY_PIXELS = 64_000_000
 
 
 def estimator_colour(name: str) -> str:
-    """The ``#rrggbb`` colour of an estimator ``name`` in every simtest picture (a stable pick for unlisted names)."""
+    """The colour of an estimator in every simtest picture (a stable pick for unlisted names).
+
+    Parameters
+    ----------
+    name : str
+        Estimator name as in ``estimates.json`` (``cone_axis``, ``bp_ray``, ...).
+
+    Returns
+    -------
+    str
+        A colour as ``#rrggbb`` (matplotlib reads it too).
+    """
     if name in ESTIMATOR_COLOURS:
         return ESTIMATOR_COLOURS[name]
     return _EXTRA_COLOURS[zlib.crc32(name.encode()) % len(_EXTRA_COLOURS)]
@@ -60,13 +71,18 @@ def _available_memory_bytes() -> int | None:
 
 
 def check_overlay_size(shape) -> None:
-    """Refuse an image of shape ``(H, W, ...)`` whose overlay would not fit in memory.
+    """Refuse an image whose overlay would not fit in memory (before anything is written).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Image shape ``(H, W, ...)``.
 
     Raises
     ------
     ValueError
-        If ``H * W`` exceeds :data:`MAX_OVERLAY_PIXELS`, or :data:`OVERLAY_BYTES_PER_PIXEL` per pixel
-        exceeds the memory available now.
+        If ``H * W`` exceeds :data:`MAX_OVERLAY_PIXELS`, or the overlay's estimated memory
+        (:data:`OVERLAY_BYTES_PER_PIXEL` per pixel) exceeds the memory available now.
     """
     h, w = int(shape[0]), int(shape[1])
     need = h * w * OVERLAY_BYTES_PER_PIXEL
@@ -103,8 +119,22 @@ def _display_image(image: np.ndarray) -> np.ndarray:
 
 
 def needle_length_px(bps: np.ndarray, shape) -> float:
-    """Needle length, px, from the BPs (N, 2) drawn: 1.5 times the median nearest-neighbour distance,
-    within 3 % and 12 % of the larger side of ``shape`` (H, W, ...).
+    """Needle length (px, for a normal perpendicular to the axis) from the highlights' spacing.
+
+    1.5 times the median distance from a BP to its nearest neighbour, kept within 3 % and 12 % of
+    the larger image side (12 % alone: one highlight; hundreds on a real frame get short needles
+    that do not cross each other much).
+
+    Parameters
+    ----------
+    bps : ndarray of shape (N, 2)
+        The BPs drawn, px.
+    shape : tuple of int
+        Image shape (H, W, ...).
+
+    Returns
+    -------
+    float
     """
     side = float(max(shape[:2]))
     lo, hi = 0.03 * side, 0.12 * side

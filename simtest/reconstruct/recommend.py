@@ -98,10 +98,15 @@ def bp_error_depth_mm(r: LightAwareEstimate, nominal_depth_mm: float) -> float:
     return float(nominal_depth_mm)
 
 def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
-    """``r`` with its depth withdrawn when its relative 1-sigma exceeds the ceiling.
+    """``r`` (a fit's result) with its depth withdrawn when its relative 1-sigma exceeds the ceiling.
 
-    Returns ``r`` where it gives no depth or the depth is within the ceiling; else a copy without
-    depth, depth sigma, distance and per-light depths, ``ok`` turned ``depth_not_observable``.
+    Returns
+    -------
+    LightAwareEstimate
+        ``r`` where it gives no depth or the depth's relative 1-sigma (a depth without sigma:
+        unbounded) is within the ceiling; else a copy without depth, depth sigma, distance and
+        per-light depths, ``ok`` turned ``depth_not_observable`` (module docstring, "Depth
+        ceiling"), its normals and their sigmas kept.
     """
     if r.depth_mm is None:
         return r
@@ -116,9 +121,24 @@ def depth_within_ceiling(r: LightAwareEstimate) -> LightAwareEstimate:
 
 
 def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
-    """The BP ray's expected error, degrees in [0, 90]: half the angle each light subtends from the
-    camera at the point ``depth_mm`` (> 0) along the unit ``ray``, averaged over the rig's lights by
-    intensity (exact for a plane and one light).
+    """The BP ray's expected error, degrees: half the angle each light subtends from the camera at
+    the point ``depth_mm`` along ``ray``, averaged over the rig's lights by intensity.
+
+    The BP ray is off the normal by half the angle between camera and light (exact for a plane and
+    one light); for a rig, the half angles' mean, as each light's lobe has its own BP.
+
+    Parameters
+    ----------
+    ray : array_like of shape (3,)
+        Unit viewing ray of the BP, camera frame.
+    depth_mm : float
+        Distance of the specular point along the ray, mm, > 0.
+    rig : LightRig
+
+    Returns
+    -------
+    float
+        Degrees, in [0, 90].
     """
     X = float(depth_mm) * np.asarray(ray, dtype=np.float64)
     to_cam = -X / np.linalg.norm(X)
@@ -175,7 +195,17 @@ def _angle_deg(a, b) -> float:
     return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 def recommend(est) -> Recommendation:
-    """The :class:`Recommendation` for one highlight with ``light_aware`` attached (module docstring)."""
+    """The normal recommended for one highlight (module docstring, "Recommendation rule").
+
+    Parameters
+    ----------
+    est : SpecularityEstimate
+        With ``light_aware`` attached (:func:`~simtest.reconstruct.light_fits.with_light_aware`).
+
+    Returns
+    -------
+    Recommendation
+    """
     la = getattr(est, "light_aware", None)
     if la is not None:  # a rig off the camera centre is known ({}: no fit ran, the BP ray's)
         pair = la.get("rig_pair")  # rule 0

@@ -79,8 +79,17 @@ NORMAL_READERS: dict[str, Callable] = {}
 def register(name: str, normal: Callable, *, kind: str, description: str, outputs=("normal",),
              status_free: bool = False, default: bool = False, reference: bool = False,
              rank: int | None = None, oracle_input: str | None = None) -> Estimator:
-    """Register an estimator (attributes of :class:`Estimator`); a name registered again is replaced in
-    place. ValueError for a kind not in :data:`KINDS` or an output not in :data:`OUTPUTS`.
+    """Register an estimator (attributes of :class:`Estimator`); a name registered again is
+    replaced in place (its order kept).
+
+    Returns
+    -------
+    Estimator
+
+    Raises
+    ------
+    ValueError
+        A kind not in :data:`KINDS` or an output not in :data:`OUTPUTS`.
 
     Examples
     --------
@@ -110,7 +119,13 @@ def unregister(name: str) -> None:
 
 
 def get(name: str) -> Estimator:
-    """The registered estimator ``name`` (KeyError for an unknown name)."""
+    """The registered estimator ``name``.
+
+    Raises
+    ------
+    KeyError
+        An unknown name.
+    """
     return _REGISTRY[name]
 
 
@@ -132,7 +147,18 @@ def names(*kinds: str, ranked: bool = False) -> tuple[str, ...]:
 
 
 def unit_or_none(v) -> np.ndarray | None:
-    """``v`` as a float64 unit vector (3,), or None if it is None/False, not 3 numbers, non-finite or zero."""
+    """``v`` as a unit vector, or None if it cannot be one.
+
+    Parameters
+    ----------
+    v : array_like of 3 numbers, None or False
+        A direction (any length).
+
+    Returns
+    -------
+    ndarray of shape (3,) or None
+        float64 unit vector; None if ``v`` is None/False, not 3 numbers, non-finite or zero.
+    """
     if v is None or v is False:
         return None
     try:

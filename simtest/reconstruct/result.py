@@ -61,9 +61,18 @@ class Reconstruction(list):
 
     @classmethod
     def of_frame(cls, estimates, detection, settings, camera, image_shape) -> Reconstruction:
-        """The frame's Reconstruction from what ``reconstruct`` holds at its end: the estimates, the
-        detection's counts, the settings' ``max_candidates``, ``isovalues`` and ``normalise``, the
-        camera's K where it is a pinhole, and the image shape.
+        """The frame's Reconstruction from what ``reconstruct`` holds at its end.
+
+        Parameters
+        ----------
+        estimates : list of SpecularityEstimate
+        detection : Detection
+            Its ``n_components`` and ``n_unexamined`` are recorded.
+        settings : ReconSettings
+            Its ``max_candidates``, ``isovalues`` and ``normalise`` are recorded.
+        camera : CameraModel
+            Its K is recorded where it is a pinhole camera.
+        image_shape : tuple of int
         """
         return cls(estimates, n_components=detection.n_components, n_unexamined=detection.n_unexamined,
                    max_candidates=settings.max_candidates, K=camera.K if isinstance(camera, PinholeCamera) else None,
@@ -90,11 +99,24 @@ class Reconstruction(list):
         return self.statuses == "ok"
 
     def normals(self, columns=NORMAL_COLUMNS) -> np.ndarray:
-        """The normals of every estimate and estimator, ``(N, len(columns), 3)``: unit, OpenCV camera
-        frame, facing the camera; NaN where an estimator gave none.
+        """The normals of every estimate and estimator, ``(N, E, 3)``.
 
-        ``columns``: names (default :data:`NORMAL_COLUMNS`); ``"recommended"`` is the recommendation's,
-        any other an attribute of the estimate (ValueError for a name that is no normal).
+        Parameters
+        ----------
+        columns : sequence of str
+            Which normals, by name (default :data:`NORMAL_COLUMNS`); ``"recommended"`` is the
+            recommendation's, any other name an attribute of the estimate.
+
+        Returns
+        -------
+        ndarray of shape (N, len(columns), 3)
+            Unit normals in the OpenCV camera frame, facing the camera; NaN where an estimator
+            gave none (a rejected candidate has only its BP ray).
+
+        Raises
+        ------
+        ValueError
+            For a name that is no normal of an estimate.
         """
         cols = tuple(columns)
         out = np.full((len(self), len(cols), 3), np.nan)
@@ -116,14 +138,44 @@ class Reconstruction(list):
         return [estimate_to_dict(e, include_points) for e in self]
 
     def to_arrow(self, *, frame: int = 0, source: str = "", include_points: bool = False):
-        """The rows ``simtest reconstruct`` writes to ``estimates.parquet`` as a pyarrow.Table
-        (:func:`~simtest.reconstruct.table.table_schema`), with the ``frame`` and ``source`` columns given.
+        """The rows ``simtest reconstruct`` writes to ``estimates.parquet``, as an Arrow table.
+
+        Parameters
+        ----------
+        frame : int
+            The ``frame`` column's value.
+        source : str
+            The ``source`` column's value (a file name).
+        include_points : bool
+            Also the isophotes' contour points.
+
+        Returns
+        -------
+        pyarrow.Table
+            One row per estimate, the schema of :func:`~simtest.reconstruct.table.table_schema`.
         """
         return arrow()[0].Table.from_batches([estimates_batch(frame, source, self, include_points)])
 
     def to_json(self, *, indent: bool = False, include_points: bool = False, image=None) -> bytes:
-        """The ``estimates.json`` document of this frame, UTF-8 bytes (``image``: the file recorded).
-        ValueError naming the key path of a value that is not finite.
+        """The ``estimates.json`` document of this frame, UTF-8 bytes (orjson).
+
+        Parameters
+        ----------
+        indent : bool
+            Indent by two spaces.
+        include_points : bool
+            Also the isophotes' contour points.
+        image : str or Path, optional
+            The image file, recorded as text.
+
+        Returns
+        -------
+        bytes
+
+        Raises
+        ------
+        ValueError
+            A value that is not finite where the schema wants a number (its key path named).
         """
         doc = estimates_document(self, K=self.K, image=image, image_shape=self.image_shape, isovalues=self.isovalues,
                                  normalise=self.normalise, include_points=include_points,

@@ -41,9 +41,22 @@ __all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
 
 
 def centroid_normal(bp_uv, camera, rig: LightRig, depth_mm: float) -> np.ndarray:
-    """The normal bisecting the directions to the camera and to the rig's centroid light (weighted by
-    the irradiance each light gives there) at ``depth_mm`` (> 0) along the ray of ``bp_uv`` (u, v) px:
-    unit (3,), facing the camera, camera frame.
+    """The normal bisecting the directions to the camera and to the rig's centroid light (the
+    lights weighted by the irradiance each gives there) at ``depth_mm`` along the BP's ray.
+
+    Parameters
+    ----------
+    bp_uv : array_like of shape (2,)
+        The BP (u, v), px.
+    camera : array_like of shape (3, 3) or CameraModel
+    rig : LightRig
+    depth_mm : float
+        Depth of the specular point along the BP's ray, mm (> 0).
+
+    Returns
+    -------
+    ndarray of shape (3,)
+        Unit normal facing the camera, camera frame.
     """
     X = depth_mm * _rays(camera, np.asarray(bp_uv, np.float64)[None])[0]
     a = _amplitudes(rig, X)

@@ -41,9 +41,17 @@ DETECTION_METHODS = ("local_peak", "full_scale")
 
 
 def validate_isovalues(isovalues) -> tuple[float, ...]:
-    """Check isovalues: one t or several (the primary first), each finite and strictly inside (0, 1).
+    """Check isovalues: one t or several, each finite and strictly inside (0, 1).
 
-    Returns the tuple in the order given.
+    Parameters
+    ----------
+    isovalues : float or sequence of float
+        One isovalue or several, the primary first.
+
+    Returns
+    -------
+    tuple of float
+        The isovalues in the order given (at least one).
 
     Raises
     ------
@@ -227,7 +235,13 @@ class ReconSettings:
         return base.replace(**changes) if changes else base
 
     def replace(self, **changes) -> ReconSettings:
-        """A copy with some fields changed, validated again (ValueError for an unknown field or a bad value)."""
+        """A copy with some fields changed, validated again.
+
+        Raises
+        ------
+        ValueError
+            For an unknown field name or a bad value.
+        """
         names = {f.name for f in dataclasses.fields(self)}
         unknown = sorted(set(changes) - names)
         if unknown:

@@ -95,13 +95,23 @@ def _nested_normals(row: dict, names) -> dict:
 
 
 def frame_batch(record: dict):
-    """A frame's record (``frame``, ``source``, ``specularities``) as a pyarrow.RecordBatch of
-    :func:`table_schema`, one row per specularity.
+    """A frame's record (:mod:`simtest.reconstruct.frames`) as rows of :func:`table_schema`.
+
+    Parameters
+    ----------
+    record : dict
+        ``frame``, ``source`` and ``specularities`` (:func:`estimate_to_dict` dicts).
+
+    Returns
+    -------
+    pyarrow.RecordBatch
+        One row per specularity, in order.
 
     Raises
     ------
     ValueError
-        A value that is not finite, or a light-aware estimator the schema has no column for.
+        A value that is not finite (as in JSON: a missing value is null, never NaN), or a
+        light-aware estimator the schema has no column for.
     """
     pa = arrow()[0]
     specs = record["specularities"]
@@ -302,8 +312,18 @@ def table_metadata(heads: list) -> dict:
 
 
 def read_table(path):
-    """Read ``estimates.parquet`` as a pyarrow.Table of :func:`table_schema` rows (its metadata:
-    :func:`table_metadata`).
+    """Read ``estimates.parquet``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file (``simtest reconstruct`` on a folder or a video).
+
+    Returns
+    -------
+    pyarrow.Table
+        Rows of :func:`table_schema`; its ``schema.metadata[b"simtest"]`` is the file's metadata
+        (:func:`table_metadata`; :func:`read_frames` reads it).
 
     Raises
     ------
@@ -327,12 +347,19 @@ def read_table(path):
 
 
 def read_frames(path) -> list[dict]:
-    """The per-frame records of ``estimates.parquet`` or ``estimates.jsonl`` (any other suffix), alike.
+    """The per-frame records of ``estimates.parquet`` or ``estimates.jsonl``, alike.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.parquet`` file (:func:`read_table`) or a JSON Lines file (anything else).
 
     Returns
     -------
     list of dict
-        One record per frame, in order, ``specularities`` as ``estimates.json`` holds them.
+        One record per frame, in order: ``frame``, ``source``, ``image_shape``, ``counts``,
+        ``detection`` and ``specularities`` (dicts of :func:`estimate_to_dict`, as
+        ``estimates.json`` holds them), the same from either file.
 
     Raises
     ------

@@ -29,8 +29,22 @@ MAX_SURFACE_GRID = 240
 
 
 def estimate_points(specs, estimator: str) -> tuple[np.ndarray, np.ndarray, bool]:
-    """3D points (N, 3) and normals (N, 3) of the ``specularities`` that have ``estimator``'s normal, and
-    whether the points are metric (mm, every highlight with ``depth_mm``) rather than unit-sphere points.
+    """3D points and normals of the reconstructed highlights (module docstring).
+
+    Parameters
+    ----------
+    specs : list of dict
+        ``specularities`` of an estimates document.
+    estimator : str
+        Which normal (``normal``, ``cone_axis``, ...); highlights without it are left out.
+
+    Returns
+    -------
+    points : ndarray of shape (N, 3)
+        mm where every highlight has ``depth_mm``, else unit-sphere points.
+    normals : ndarray of shape (N, 3)
+    metric : bool
+        True when the points are in mm.
     """
     rays, normals, depths = [], [], []
     for s in specs:
@@ -49,8 +63,21 @@ def estimate_points(specs, estimator: str) -> tuple[np.ndarray, np.ndarray, bool
 
 
 def surface_from_depth(depth_mm, camera, *, z_depth: bool = True) -> np.ndarray:
-    """Camera-frame points (H, W, 3) mm of a depth map (H, W) through ``camera``: ``z_depth`` the z
-    coordinate, else the distance along the ray; NaN where the depth or ray is invalid.
+    """Camera-frame points (H, W, 3) mm of a depth map through a camera model.
+
+    Parameters
+    ----------
+    depth_mm : ndarray of shape (H, W)
+        Depth, mm; NaN where invalid.
+    camera : CameraModel
+        The camera.
+    z_depth : bool
+        True: the depth is the z coordinate (renders, C3VD); False: the distance along the ray.
+
+    Returns
+    -------
+    ndarray of shape (H, W, 3)
+        NaN where the depth or the ray is invalid.
     """
     d = np.asarray(depth_mm, dtype=np.float64)
     H, W = d.shape

@@ -56,14 +56,23 @@ def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec,
 
 
 def visible_highlights(highlights: list[HighlightTruth], specular: np.ndarray) -> list[HighlightTruth]:
-    """The highlights a camera can see, in their order: finite, in front of the camera (z > 0), and, where in
-    frame, on a pixel with specular light (not shadowed, not facing away).
+    """The highlights a camera can see: finite, in front of the camera, lit where in frame.
+
+    A brightest point found on the analytic surface or the mesh is dropped when its position or
+    normal is not finite, when it lies behind the camera (``z <= 0``: e.g. the nearest point of a
+    sphere the camera looks away from), or when it is in frame but its pixel carries no specular
+    light (a shadowed BP, or a light the visible side does not face).
 
     Parameters
     ----------
     highlights : list of HighlightTruth
     specular : ndarray of shape (H, W)
         The render's specular-only linear image.
+
+    Returns
+    -------
+    list of HighlightTruth
+        The kept highlights, in their order.
     """
     H, W = specular.shape[:2]
     out = []

@@ -67,10 +67,19 @@ LUMA_WEIGHTS = LUMA_BT601
 
 
 def field_stop_mask(shape: tuple[int, int], kind: str, radius: float) -> np.ndarray:
-    """Pixels (H, W) bool inside a scope's field stop centred on the image (read-only, cached).
+    """Pixels inside a scope's field stop, centred on the image (a read-only array, cached).
 
-    ``kind`` "none", "circle" or "octagon" (the regular octagon around the circle, Olympus frames);
-    ``radius`` as a fraction of half the image width.
+    Parameters
+    ----------
+    shape : (H, W)
+    kind : {"none", "circle", "octagon"}
+        "octagon": the regular octagon whose inscribed circle is the circle (Olympus frames).
+    radius : float
+        Radius as a fraction of half the image width.
+
+    Returns
+    -------
+    ndarray of shape (H, W), bool
     """
     return _field_stop((int(shape[0]), int(shape[1])), str(kind), float(radius))
 
@@ -109,10 +118,21 @@ def _vignetting_gain(shape: tuple[int, int], vignetting: float) -> np.ndarray:
 
 
 def peak_exposure(rgb: np.ndarray, meter: np.ndarray, sensor: SensorSpec) -> float:
-    """The largest exposure at which at most ``sensor.auto_clip_percent`` % of the metered pixels clip.
+    """The largest exposure at which at most ``sensor.auto_clip_percent`` % of the metered pixels
+    clip in their brightest white-balanced channel (before noise and vignetting).
 
-    Clipping is judged on the brightest white-balanced channel, before noise and vignetting; ``inf`` where
-    nothing would clip.
+    Parameters
+    ----------
+    rgb : ndarray of shape (H, W, 3) or (H, W, 1)
+        Linear radiance.
+    meter : ndarray of shape (H, W), bool
+        The metered pixels (at least one).
+    sensor : SensorSpec
+
+    Returns
+    -------
+    float
+        The exposure (``inf`` where the metered pixels' quantile is 0: nothing would clip).
     """
     peak = (np.maximum(rgb[meter], 0.0) * np.asarray(sensor.white_balance)).max(axis=-1)
     q = float(np.quantile(peak, 1.0 - sensor.auto_clip_percent / 100.0))
@@ -121,26 +141,37 @@ def peak_exposure(rgb: np.ndarray, meter: np.ndarray, sensor: SensorSpec) -> flo
 
 def video_frame(rgb: np.ndarray, sensor: SensorSpec, seed: int, *, threads: int | None = None,
                 tissue: np.ndarray | None = None) -> np.ndarray:
-    """An 8-bit RGB video frame (H, W, 3) from a linear RGB image, as a scope's camera makes it.
+    """An 8-bit RGB video frame from a linear RGB image, as a scope's camera makes it.
 
-    In order: exposure (``exposure``, or "auto": the mean luma of the field stop, or of its tissue pixels with
-    ``metering = "tissue"``, made ``auto_mean``, capped by :func:`peak_exposure`); vignetting; white balance;
-    shot and read noise; clipping at ``saturation``; colour saturation about the BT.601 luma; the tone curve
-    (``gamma`` or sRGB); 8-bit quantisation; black outside the field stop; JPEG at ``jpeg_quality`` when > 0.
-    The per-pixel steps run on :data:`VIDEO_BANDS` row bands, each with its own noise stream
-    ``SeedSequence([seed, SENSOR_SEED_KEY, 1, b])``, so the frame does not depend on ``threads``.
+    Steps, in order: exposure (``exposure``, or "auto": the mean luma inside the field stop, or
+    of its pixels on tissue with ``metering = "tissue"``, made ``auto_mean``, but no more than
+    lets ``auto_clip_percent`` % of them clip: :func:`peak_exposure`); vignetting ``1 - v (r / r_max)^2``; white-balance gains; shot noise (Poisson,
+    ``full_well_e`` electrons at full scale) and read noise (``gaussian_sigma``), per channel;
+    clipping at ``saturation`` (then scaled to full scale); colour saturation about the BT.601
+    luma; the tone curve (``gamma`` or sRGB); 8-bit quantisation; the field stop (black outside);
+    JPEG at ``jpeg_quality`` (encoded and decoded with Pillow, 4:2:0 chroma) when > 0.
+
+    Every step but the auto-exposure (a mean over the frame) is per pixel; they run on
+    :data:`VIDEO_BANDS` row bands, on ``threads`` threads (numpy releases the GIL), each band with
+    its own noise stream, so the frame does not depend on ``threads``.
 
     Parameters
     ----------
     rgb : ndarray of shape (H, W, 3) or (H, W)
-        Linear radiance (a grey image for all three channels).
+        Linear radiance (a grey image is used for all three channels).
     sensor : SensorSpec
     seed : int
-        Root seed.
+        Root seed; band b's noise stream is ``SeedSequence([seed, SENSOR_SEED_KEY, 1, b])`` (the
+        grey sensor image's stream is ``[seed, SENSOR_SEED_KEY]``).
     threads : int, optional
         Threads that develop the bands (default: the CPU count, at most 4).
     tissue : ndarray of shape (H, W), bool, optional
-        Pixels on tissue, for ``sensor.metering = "tissue"``.
+        Pixels on tissue: with ``sensor.metering = "tissue"`` the auto-exposure averages the
+        field stop's pixels among them only (all of the field stop without it).
+
+    Returns
+    -------
+    ndarray of shape (H, W, 3), uint8
     """
     rgb = np.asarray(rgb)
     if rgb.ndim == 2:

@@ -284,13 +284,19 @@ SPLIT_SEED = 62
 def split_indices(ids: list[str]) -> tuple[list[int], list[int]]:
     """Indices of the tuning and the held-out frames among frames named ``ids``.
 
-    Frames :data:`REAL_SPLIT` lists go where it says; the others are permuted with
-    ``default_rng(SPLIT_SEED)`` and split half and half (the odd one to tuning).
+    A frame :data:`REAL_SPLIT` lists goes where it says. The others (frames the project does not
+    bundle) are ordered by a permutation drawn from ``numpy.random.default_rng(SPLIT_SEED)`` and
+    split half and half (the odd one to tuning); a lone frame is tuning only.
+
+    Parameters
+    ----------
+    ids : list of str
+        One id a frame (:func:`banner_tiles`'s for a banner's tiles, else the file name).
 
     Returns
     -------
     tuning, held_out : list of int
-        Indices into ``ids``, each increasing.
+        Indices into ``ids``, each in increasing order.
     """
     tuning = [i for i, k in enumerate(ids) if REAL_SPLIT.get(k) == "tuning"]
     held = [i for i, k in enumerate(ids) if REAL_SPLIT.get(k) == "held_out"]

@@ -137,7 +137,14 @@ def grow_network(rng: np.random.Generator, layer: VesselLayer, tile_mm: float = 
 
 
 def murray_radii(net: Network, root_radius_mm: float) -> np.ndarray:
-    """Radius (N,) of every node, mm, by Murray's law: ``r^3`` as the tips downstream, roots at ``root_radius_mm``."""
+    """Radius of every node, mm, by Murray's law (module notes): ``r^3`` proportional to the
+    number of tips downstream, each tree's root at ``root_radius_mm``.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+        ``r[p]^3 = sum of r[c]^3 over p's children c`` at every node with children.
+    """
     n = len(net.parent)
     has_child = np.zeros(n, dtype=bool)
     has_child[net.parent[net.parent >= 0]] = True
@@ -155,9 +162,17 @@ def murray_radii(net: Network, root_radius_mm: float) -> np.ndarray:
 
 def coverage_map(net: Network, radii: np.ndarray, tile_mm: float = TILE_MM, texel_mm: float = TEXEL_MM,
                  sigma_mm: float = 0.0) -> np.ndarray:
-    """Anti-aliased coverage (H, W) float32 in [0, 1] of the vessels on the tile's texels, blurred by ``sigma_mm``.
+    """Anti-aliased coverage of the network's vessels on the tile's texels, blurred.
 
-    Texel (i, j) is centred at ``(u, v) = ((j + 0.5) texel_mm, (i + 0.5) texel_mm)``.
+    Each segment (node to parent) is drawn with the child's radius and round caps on a raster
+    :data:`SUPERSAMPLE` times finer than the texels, averaged down, then blurred by a Gaussian of
+    ``sigma_mm`` (mirrored at the tile's edges, as the texture repeats).
+
+    Returns
+    -------
+    ndarray of shape (H, W), float32
+        Coverage in [0, 1]; row ``i``, column ``j`` is the texel centred at
+        ``(u, v) = ((j + 0.5) texel_mm, (i + 0.5) texel_mm)``.
     """
     n_px = int(round(tile_mm / texel_mm))
     fine = np.zeros((n_px * SUPERSAMPLE, n_px * SUPERSAMPLE), np.uint8)
@@ -179,8 +194,17 @@ def coverage_map(net: Network, radii: np.ndarray, tile_mm: float = TILE_MM, texe
 def transmission_map(seed: int, layers: tuple[VesselLayer, ...] = VESSEL_LAYERS) -> np.ndarray:
     """The vessel texture of a texture seed: ``prod over layers of (1 - absorb_c * coverage)``.
 
-    Layer ``i`` grows from ``SeedSequence([seed, VESSEL_SEED_KEY, i])``. Returns a read-only (H, W, 3)
-    float32 per-channel transmission in [0, 1] over the tile.
+    Parameters
+    ----------
+    seed : int
+        The tissue's texture seed; layer ``i`` grows from
+        ``SeedSequence([seed, VESSEL_SEED_KEY, i])``.
+    layers : tuple of VesselLayer
+
+    Returns
+    -------
+    ndarray of shape (H, W, 3), float32, read-only
+        Per-channel transmission in [0, 1] over the tile (texels as :func:`coverage_map`).
     """
     out = None
     for i, layer in enumerate(layers):

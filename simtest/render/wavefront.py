@@ -165,7 +165,24 @@ def shade(scene, d: np.ndarray, rig: LightRig, *, shadows: bool, spp: int = 1,
 
 
 def coverage(scene, d, *, spp: int = 1, defer: bool = False) -> np.ndarray | Pending:
-    """Fraction of each pixel's rays that hit the surface: ndarray (N / spp,), float32 (or a :class:`Pending`)."""
+    """Fraction of each pixel's rays that hit the surface (no shading).
+
+    Parameters
+    ----------
+    scene : mitsuba.Scene
+        Built in the camera frame.
+    d : ndarray of shape (N, 3) or mitsuba.Vector3f
+        Unit ray directions, camera frame (:func:`model_rays`).
+    spp : int
+        Consecutive rays per pixel.
+    defer : bool
+        Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the result.
+
+    Returns
+    -------
+    ndarray of shape (N / spp,), float32
+        The ``coverage`` that :func:`shade` and :func:`shade_tissue` return for the same rays.
+    """
     dr = require("drjit")
     valid = scene.ray_intersect_preliminary(_rays(d), True).is_valid()
     out = Pending(_per_pixel(spp, dr.select(valid, 1.0, 0.0)), lambda cov: cov)

@@ -62,7 +62,15 @@ class PlaneGeometry:
 
 @_frozen
 class SphereGeometry:
-    """A sphere, world frame: ``center_mm`` (3,) and ``radius_mm`` > 0, both required."""
+    """A sphere, world frame.
+
+    Attributes
+    ----------
+    center_mm : (3,) float
+        Centre; required.
+    radius_mm : float
+        Radius, > 0; required.
+    """
 
     type: ClassVar[str] = "sphere"
     frame: ClassVar[str] = "world"

@@ -86,10 +86,23 @@ class MeshPlacement:
 
 @functools.lru_cache(maxsize=4)
 def mesh_placement(name: str) -> MeshPlacement:
-    """Load the bundled mesh ``name`` ({"colon", "colon_haustral", "liver"}) and its placement data (cached).
+    """Load the bundled mesh ``name`` and what the placements need of it (cached per process).
 
-    Raises FileNotFoundError if the mesh file is missing (``simtest meshes build`` writes it),
-    ValueError if a colon mesh carries no centre line in its metadata.
+    Parameters
+    ----------
+    name : {"colon", "colon_haustral", "liver"}
+        The bundled mesh (``meshes/<name>.ply``).
+
+    Returns
+    -------
+    MeshPlacement
+
+    Raises
+    ------
+    FileNotFoundError
+        If the mesh file is missing (``simtest meshes build`` writes it).
+    ValueError
+        If the colon mesh carries no centre line in its metadata.
     """
     path = bundled_mesh_path(name)
     if not path.is_file():
@@ -110,11 +123,22 @@ def mesh_placement(name: str) -> MeshPlacement:
 
 
 def camera_up(forward: np.ndarray, roll_deg: float | None = None) -> np.ndarray:
-    """The image's unit up direction for a camera looking along ``forward`` (3,).
+    """The image's up direction for a camera looking along ``forward``.
 
-    ``roll_deg`` None: the first vector of ``plane_basis(forward)`` (the harness); a number: that basis
-    of the normalised ``forward`` turned by ``roll_deg`` about it (the dataset). 0 and None differ in
-    the last bits, which is why both are kept.
+    Parameters
+    ----------
+    forward : ndarray of shape (3,)
+        Viewing direction (unit length, or nearly).
+    roll_deg : float or None
+        None: the first vector of ``plane_basis(forward)`` (z x forward, or x x forward near z),
+        as the harness places its cameras. A number: ``forward`` is first normalised, and the up
+        is that basis turned by ``roll_deg`` about it, as the dataset draws it; 0 gives the same
+        direction as None up to the last bits, which is why both are kept.
+
+    Returns
+    -------
+    ndarray of shape (3,)
+        Unit vector perpendicular to ``forward``.
     """
     if roll_deg is None:
         return plane_basis(forward, axes=_AXES)[0]
@@ -202,12 +226,28 @@ def _haustral_pose(station: float, view_deg: float, azimuth_deg: float | None, r
 
 
 def liver_orbit_pose(azimuth_deg: float, elevation_deg: float, distance_mm: float) -> CameraPose:
-    """Camera at ``c + (R + distance_mm) d`` outside the bundled liver, looking along ``-d``.
+    """Camera outside the bundled liver, on a sphere about it, aimed at its bounding-box centre.
 
-    ``c`` is the bounding-box centre, ``R`` the bounding radius about it and
-    ``d = (cos el cos az, cos el sin az, sin el)`` from ``azimuth_deg``, ``elevation_deg``; up from
-    :func:`camera_up` without roll, ``look_at`` one millimetre ahead. FileNotFoundError as
-    :func:`mesh_placement`.
+    The camera stands at ``c + (R + distance_mm) d``, with ``c`` the bounding-box centre, ``R`` the
+    bounding-sphere radius about it and ``d = (cos el cos az, cos el sin az, sin el)``, and looks
+    along ``-d``; up from :func:`camera_up` without roll.
+
+    Parameters
+    ----------
+    azimuth_deg, elevation_deg : float
+        Direction ``d`` of the camera from the centre, degrees.
+    distance_mm : float
+        Distance outside the bounding sphere, mm.
+
+    Returns
+    -------
+    CameraPose
+        ``look_at`` is one millimetre ahead of the camera.
+
+    Raises
+    ------
+    FileNotFoundError
+        As :func:`mesh_placement`.
     """
     info = mesh_placement("liver")
     az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
@@ -219,14 +259,34 @@ def liver_orbit_pose(azimuth_deg: float, elevation_deg: float, distance_mm: floa
 
 def liver_surface_pose(azimuth_deg: float, elevation_deg: float, distance_mm: float,
                        view_deg: float, roll_deg: float) -> CameraPose:
-    """Camera looking at one surface point ``p`` of the bundled liver from ``distance_mm``.
+    """Camera looking at one surface point of the bundled liver from a set distance.
 
-    ``p`` is the vertex whose direction from the centre is closest to
-    ``d = (cos el cos az, cos el sin az, sin el)``; with ``n`` its outward normal and ``(e1, e2)`` the
-    basis across it, the camera stands at ``p + distance_mm b``,
-    ``b = cos(view) n + sin(view) (cos(roll) e1 + sin(roll) e2)``; the image's up is the tilt's side
-    direction made perpendicular to the line of sight. ``look_at`` is ``p``. FileNotFoundError as
-    :func:`mesh_placement`.
+    The point is the vertex whose direction from the bounding-box centre is closest to
+    ``d = (cos el cos az, cos el sin az, sin el)``; with ``n`` its outward normal and ``(e1, e2)``
+    the basis across it, the camera stands at ``p + distance_mm b`` with
+    ``b = cos(view) n + sin(view) (cos(roll) e1 + sin(roll) e2)`` and looks at ``p``.
+
+    Parameters
+    ----------
+    azimuth_deg, elevation_deg : float
+        Direction of the surface point from the centre, degrees.
+    distance_mm : float
+        Camera to surface point, mm.
+    view_deg : float
+        Tilt of the line of sight off the normal, degrees.
+    roll_deg : float
+        Direction of that tilt about the normal, degrees; the image's up is the tilt's side
+        direction made perpendicular to the line of sight (the side direction itself at no tilt).
+
+    Returns
+    -------
+    CameraPose
+        ``look_at`` is the surface point.
+
+    Raises
+    ------
+    FileNotFoundError
+        As :func:`mesh_placement`.
     """
     info = mesh_placement("liver")
     mesh = info.mesh

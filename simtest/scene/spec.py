@@ -384,8 +384,18 @@ _SECTIONS: dict[str, type] = {"camera": CameraSpec, "light": LightSpec, "materia
 class SceneSpec:
     """A whole scene: one camera with its light, one surface, a sensor and render settings.
 
-    ``name`` defaults to the file stem when loaded; ``source`` (file path or ``"<dict>"``) is for
-    messages, not serialised nor compared.
+    Attributes
+    ----------
+    name, description : str
+        Free text (``name`` defaults to the file stem when loaded from a file).
+    camera : CameraSpec
+    light : LightSpec
+    material : MaterialSpec
+    geometry : GeometrySpec
+    sensor : SensorSpec
+    render : RenderSpec
+    source : str
+        File path or ``"<dict>"``, for messages; not serialised and not compared.
     """
 
     name: Str = "scene"
@@ -557,10 +567,23 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>", base_dir: str 
 
 
 def load_scene(path: str | Path) -> SceneSpec:
-    """Load and validate a TOML scene file, or the bundled scene of that name (e.g. ``"plane_58deg"``).
+    """Load and validate a TOML scene file.
 
-    ``name`` defaults to the file stem. Raises :class:`SceneError` if the file is missing, is not
-    valid TOML or fails validation (:func:`scene_from_dict`).
+    Parameters
+    ----------
+    path : str or Path
+        A ``.toml`` file, or the name of a bundled scene (e.g. ``"plane_58deg"``).
+
+    Returns
+    -------
+    SceneSpec
+        Validated; ``name`` defaults to the file stem and ``source`` is the file path.
+
+    Raises
+    ------
+    SceneError
+        If the file is missing, is not valid TOML, or fails validation (see
+        :func:`scene_from_dict`).
     """
     p = Path(path)
     if not p.is_file() and p.suffix != ".toml" and "/" not in str(path):
@@ -583,9 +606,20 @@ def load_scene(path: str | Path) -> SceneSpec:
 
 
 def scene_to_dict(spec: SceneSpec) -> dict[str, Any]:
-    """The nested dict (TOML layout, tuples as lists) of ``spec``; None values and ``source`` left out.
+    """Return the nested dict (TOML layout) of ``spec``; None values are left out.
 
     ``scene_from_dict(scene_to_dict(s)) == s`` for a valid spec ``s``.
+
+    Parameters
+    ----------
+    spec : SceneSpec
+        A validated spec.
+
+    Returns
+    -------
+    dict
+        ``{"name", "description", "camera": {...}, ..., "render": {...}}`` with tuples as lists
+        (lengths in mm, angles in degrees, as in the file); ``source`` is not included.
     """
     out: dict[str, Any] = {"name": spec.name, "description": spec.description}
     for section in _SECTIONS:
@@ -600,16 +634,22 @@ def scene_to_dict(spec: SceneSpec) -> dict[str, Any]:
 
 
 def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
-    """A copy of ``spec`` with dotted keys replaced, validated again.
+    """Return a copy of ``spec`` with dotted keys replaced, validated again.
 
     Parameters
     ----------
     spec : SceneSpec
-        The base spec (relative paths resolve from its folder).
+        The base spec.
     overrides : mapping
-        e.g. ``{"material.n": 80, "geometry.tilt_deg": 30}``; ``name`` and ``description`` bare. None
-        unsets an optional key. Applied in order; ``geometry.type`` set to another type starts the
-        geometry afresh, so the new type's keys follow it.
+        e.g. ``{"material.n": 80, "geometry.tilt_deg": 30, "render.seed": 3}``; ``name`` and
+        ``description`` may be given bare. None unsets an optional key. Overrides apply in order;
+        ``geometry.type`` set to another type starts the geometry afresh (the old type's keys are
+        dropped), so the keys of the new type follow it.
+
+    Returns
+    -------
+    SceneSpec
+        A new validated spec (relative mesh paths resolved from the base spec's folder).
 
     Raises
     ------
@@ -635,8 +675,14 @@ def with_overrides(spec: SceneSpec, overrides: Mapping[str, Any]) -> SceneSpec:
 def scene_to_toml(spec: SceneSpec, folder: str | Path | None = None, header: str = "") -> str:
     """The scene file (TOML text) of ``spec``: ``load_scene`` of it gives ``spec`` back.
 
-    File paths (``geometry.path``, ``camera.file``) are written relative to ``folder`` when given;
-    ``header`` lines come first as ``# `` comments.
+    Parameters
+    ----------
+    spec : SceneSpec
+    folder : str or Path, optional
+        The folder the file will be written to: file paths of the scene (``geometry.path``,
+        ``camera.file``) are written relative to it (absolute without).
+    header : str
+        Comment lines put first (each prefixed with ``# ``).
     """
     d = scene_to_dict(spec)
     if folder is not None:

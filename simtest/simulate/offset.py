@@ -26,11 +26,32 @@ __all__ = ["rig_plane_image", "specular_point"]
 
 
 def specular_point(normal, distance_mm: float, light_mm) -> tuple[np.ndarray, float]:
-    """The specular point of a plane for one light (:func:`simtest.simulate.analytic.plane_bp`) and its depth.
+    """The specular point of a plane for one light, and its depth along its ray.
 
-    Returns ``(point_mm, depth_mm)``: the point in the camera frame and its distance from the camera
-    centre (the depth along its ray, as Mitsuba's). Raises ValueError if the light is not on the
-    camera's side of the plane.
+    Where the normal bisects the directions to the camera and to the light: the segment from the
+    camera centre to the mirror image ``L' = L - 2 (n.L + h) n`` meets the plane there
+    (:func:`simtest.simulate.analytic.plane_bp`).
+
+    Parameters
+    ----------
+    normal : array_like of shape (3,)
+        Plane normal facing the camera, camera frame.
+    distance_mm : float
+        Camera-to-plane distance h, > 0.
+    light_mm : array_like of shape (3,)
+        Light position, camera frame, on the camera's side of the plane.
+
+    Returns
+    -------
+    point_mm : ndarray of shape (3,)
+        The specular point, camera frame, mm.
+    depth_mm : float
+        Its distance from the camera centre (the depth along its viewing ray, as Mitsuba's depth).
+
+    Raises
+    ------
+    ValueError
+        If the light is not on the camera's side of the plane.
     """
     X = plane_bp(normal, distance_mm, light_mm)
     return X, float(np.linalg.norm(X))
@@ -38,13 +59,36 @@ def specular_point(normal, distance_mm: float, light_mm) -> tuple[np.ndarray, fl
 
 def rig_plane_image(K, shape: tuple[int, int], normal, distance_mm: float, rig: LightRig,
                     n: float, c: float = 1.0, supersample: int = 1) -> np.ndarray:
-    """Exact float image (H, W) of a Phong plane lit by ``rig`` through a pinhole (module docstring).
+    """Exact float image of a Phong plane lit by a rig, through a pinhole (module docstring).
 
-    ``K`` (pinhole intrinsics), ``shape``, ``normal``, ``distance_mm``, ``n``, ``c`` and
-    ``supersample`` are as in :func:`simtest.simulate.analytic.phong_plane_image`; ``rig`` holds the
-    lights (camera frame, mm), each on the camera's side of the plane. The image is 0 where the pixel
-    ray misses the plane. Raises ValueError on invalid K, shape, normal, distance, n, c, supersample,
-    or a light behind the plane.
+    Parameters
+    ----------
+    K : array_like of shape (3, 3)
+        Intrinsics, pixel centres at integer coordinates.
+    shape : (H, W)
+        Image size, px.
+    normal : array_like of shape (3,)
+        Plane normal facing the camera (camera frame).
+    distance_mm : float
+        Camera-to-plane distance, mm, > 0.
+    rig : LightRig
+        The lights (camera frame, mm), each on the camera's side of the plane.
+    n : float
+        Phong roughness, > 0.
+    c : float
+        Scale, > 0.
+    supersample : int
+        s x s point samples per pixel, box-averaged (1: the value at the pixel centre).
+
+    Returns
+    -------
+    ndarray of shape (H, W), float64
+        Intensity; 0 where the pixel ray misses the plane.
+
+    Raises
+    ------
+    ValueError
+        Invalid K, shape, normal, distance, n, c, supersample, or a light behind the plane.
     """
     K = validate_intrinsics(K)
     N = unit(np.asarray(normal, dtype=np.float64).reshape(3))

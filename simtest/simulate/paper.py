@@ -115,7 +115,13 @@ class PaperParams:
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
-        """The dataclass field names in declaration order (the keys a sweep may vary)."""
+        """Names of the parameters (the keys a sweep may vary).
+
+        Returns
+        -------
+        tuple of str
+            The dataclass field names, in declaration order.
+        """
         return tuple(f.name for f in dataclasses.fields(cls))
 
 
@@ -192,9 +198,20 @@ def paper_homography(params: PaperParams, window_centre=(0.0, 0.0)):
 
 
 def mirror_point(V, L) -> np.ndarray:
-    """The BP ``(x, y)`` on the plane z = 0 (beta = 0 in eq. 1) for viewer ``V`` and light ``L`` (plane frame).
+    """The BP on the plane z = 0: where the mirror ray from the light reaches the viewer.
 
-    ``V_Z, L_Z > 0``; for ``L = V`` it is ``(V_X, V_Y)``.
+    Parameters
+    ----------
+    V : array_like of shape (3,)
+        Viewer position, plane frame (texture pixels), ``V_Z > 0``.
+    L : array_like of shape (3,)
+        Light position, plane frame, ``L_Z > 0``.
+
+    Returns
+    -------
+    ndarray of shape (2,)
+        ``(x, y)`` where beta = 0 in eq. 1, so ``I = c`` (the maximum); for ``L = V`` it is
+        ``(V_X, V_Y)``. Not checked: ``V_Z + L_Z = 0`` divides by zero.
     """
     V = np.asarray(V, dtype=np.float64)
     L = np.asarray(L, dtype=np.float64)
@@ -210,7 +227,13 @@ SMOOTH_ALIGN = smooth_block_px(np.dtype(np.float32).itemsize)
 
 @dataclass
 class PaperSimulator:
-    """Draws realisations of the ``paper`` protocol (the noiseless image computed once if ``epsilon = 0``).
+    """Draws realisations of the ``paper`` protocol; the noiseless image is computed once when the
+    light is fixed (``epsilon = 0``), so only noise, smoothing and normalisation run per sample.
+
+    Parameters
+    ----------
+    params : PaperParams
+        Validated protocol parameters.
 
     Examples
     --------
@@ -251,7 +274,19 @@ class PaperSimulator:
         return image, (K, bp_px, normal)
 
     def light(self, rng: np.random.Generator) -> np.ndarray:
-        """Draw ``L = V + epsilon (cos a, sin a, b)`` (plane frame, texture px), a and b even if epsilon = 0."""
+        """Draw the light position ``L = V + epsilon (cos a, sin a, b)`` (paper section 3.1).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            The realisation's generator; ``a ~ U[0, 2 pi)`` then ``b ~ U[-0.5, 0.5)`` are always
+            drawn, even for ``epsilon = 0``.
+
+        Returns
+        -------
+        ndarray of shape (3,)
+            L in the plane frame, texture pixels.
+        """
         a = rng.uniform(0.0, 2.0 * math.pi)
         b = rng.uniform(-0.5, 0.5)
         return self.V + self.params.epsilon_px * np.array([math.cos(a), math.sin(a), b])
@@ -267,17 +302,27 @@ class PaperSimulator:
         Parameters
         ----------
         rng : numpy.random.Generator
-            The realisation's own generator.
+            The realisation's own generator (derive it from a SeedSequence).
         region : callable, optional
-            ``region(clean, bp_px) -> (row0, row1, col0, col1)`` (half-open, px): the only pixels the
-            caller reads. The image is then computed only in the box holding the region and the BP's
-            2 x 2 pixels, bit-identical there to the whole-image result and 0 elsewhere; the noise stream
-            is drawn only through the last row read.
+            ``region(clean, bp_px) -> (row0, row1, col0, col1)`` (half-open, px): the only pixels
+            the caller reads (the reconstruction's ROI). The noise is the whole image's random
+            stream in raster order, drawn through the last row that the smallest box holding
+            the region and the BP's 2 x 2 pixels (which the normalisation reads), grown by the
+            smoothing kernel's radius, reads; it is scaled, smoothed and normalised only in that
+            box: there the image is the same bits as without ``region`` (each smoothed pixel
+            reads the pixels within the radius, and OpenCV reflects at the image's own sides),
+            elsewhere it is 0. The generator is left after that row's noise (after the whole
+            image's without ``region``). Default: the whole image. The region asked is the
+            sample's ``region``.
+
+        Returns
+        -------
+        PaperSample
 
         Raises
         ------
         FloatingPointError
-            If the smoothed intensity at the BP is not positive.
+            If the smoothed intensity at the BP is not positive (cannot normalise).
         """
         p = self.params
         L = self.light(rng)

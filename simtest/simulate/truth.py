@@ -71,8 +71,14 @@ class HighlightTruth:
     light: int = 0
 
     def to_dict(self) -> dict:
-        """JSON-ready form, as written to ``highlights.json``: ``light``, ``depth_mm``, ``bp_px``, ``bp_mm``,
-        ``normal``, ``k1``, ``k2``, ``in_frame`` (lists of floats, camera frame).
+        """JSON-ready form, as written to ``highlights.json``.
+
+        Returns
+        -------
+        dict
+            ``bp_px`` [u, v] px, ``bp_mm`` (the specular point) and ``normal`` [x, y, z] (camera
+            frame; mm, unit), ``depth_mm`` (z of the point), ``k1``, ``k2`` (1/mm), ``in_frame``
+            (bool), ``light`` (index in the light rig); lists of floats.
         """
         return {"light": int(self.light), "depth_mm": float(self.bp_mm[2]), "bp_px": [float(x) for x in self.bp_px],
                 "bp_mm": [float(x) for x in self.bp_mm], "normal": [float(x) for x in self.normal],
@@ -101,7 +107,19 @@ def bisector(p: np.ndarray, light: np.ndarray) -> np.ndarray:
 
 
 def pixel_in_frame(uv: np.ndarray, size: tuple[int, int]) -> bool:
-    """Whether ``uv`` = [u, v] lies in a W x H image, ``size = (W, H)``: ``-0.5 <= u < W - 0.5``, same for v."""
+    """Whether the pixel ``uv`` = [u, v] lies in a W x H image: ``-0.5 <= u < W - 0.5``, same for v.
+
+    Parameters
+    ----------
+    uv : ndarray of shape (2,)
+        Pixel coordinates (pixel centres at integers); NaN or infinite is outside.
+    size : tuple of int
+        (W, H) in pixels.
+
+    Returns
+    -------
+    bool
+    """
     w, h = size
     return bool(np.all(np.isfinite(uv)) and -0.5 <= uv[0] < w - 0.5 and -0.5 <= uv[1] < h - 0.5)
 
@@ -445,8 +463,13 @@ def saddle_mesh(distance_mm: float, radius1_mm: float, radius2_mm: float, extent
                 resolution: int) -> dict[str, np.ndarray]:
     """Grid mesh of ``z = d + x^2 / (2 r1) - y^2 / (2 r2)`` in the camera frame, |x|, |y| <= e.
 
-    Returns ``vertices`` (V, 3), ``faces`` (F, 3), ``normals`` (V, 3) facing the camera, and analytic
-    ``k1``, ``k2`` (V,) in 1/mm (at the apex k1 = 1/r1, k2 = -1/r2).
+    Returns
+    -------
+    dict
+        ``vertices`` (V, 3), ``faces`` (F, 3), ``normals`` (V, 3) facing the camera (-z side),
+        ``k1``, ``k2`` (V,) analytic principal curvatures (1/mm, positive where the surface bends
+        away from its normal, as in :mod:`simtest.scene.meshes`; at the apex k1 = 1/r1,
+        k2 = -1/r2).
     """
     s = np.linspace(-extent_mm, extent_mm, resolution)
     x, y = np.meshgrid(s, s, indexing="xy")

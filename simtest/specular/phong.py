@@ -102,7 +102,10 @@ def _cos_beta(P: np.ndarray, V: np.ndarray, R: np.ndarray) -> np.ndarray:
 def tau_from_isovalue(t, n: float, c: float = 1.0):
     """``tau = (t / c)^(1/n)``, the cosine of beta on the isophote of isovalue t (paper sec. 2.1).
 
-    Raises ValueError if t is not in (0, c] or n, c are not positive.
+    Raises
+    ------
+    ValueError
+        If t is not in (0, c] or n, c are not positive.
     """
     t = np.asarray(t, dtype=np.float64)
     if not n > 0 or not c > 0:
@@ -118,11 +121,23 @@ def kappa_from_isovalue(t, n: float, c: float = 1.0):
 
 
 def general_isocurve(P, V, L, tau: float) -> np.ndarray:
-    """The general specular isocurve Q(p) (paper eq. 2), a quartic in (x, y), at points P (..., 2 or 3).
+    """The general specular isocurve Q(p) (paper eq. 2), a quartic in (x, y).
 
-    ``Q(p) = ((R - P)^T (V - P))^2 - tau^2 ||R - P||^2 ||V - P||^2`` for viewer ``V`` and light ``L``
-    (3,), ``tau`` in (0, 1]; the isophote I = t is a subset of Q = 0 (cos beta = +tau or -tau).
-    Returns an ndarray of shape (...).
+    ``Q(p) = ((R - P)^T (V - P))^2 - tau^2 ||R - P||^2 ||V - P||^2``; the isophote I = t is a subset
+    of Q = 0 (both cos beta = +tau and -tau satisfy it).
+
+    Parameters
+    ----------
+    P : array_like of shape (..., 2) or (..., 3)
+        Points on the plane z = 0.
+    V, L : array_like of shape (3,)
+        Viewer and light positions.
+    tau : float
+        Cosine level, in (0, 1].
+
+    Returns
+    -------
+    ndarray of shape (...)
     """
     P = _points(P)
     V = np.asarray(V, dtype=np.float64).reshape(3)
@@ -132,10 +147,24 @@ def general_isocurve(P, V, L, tau: float) -> np.ndarray:
 
 
 def endoscopic_isocurve(P, V, kappa: float) -> np.ndarray:
-    """The endoscopic specular isocurve E(p) (paper eq. 3), Q with L = V, at points P (..., 2 or 3).
+    """The endoscopic specular isocurve E(p) (paper eq. 3), Q with L = V.
 
-    ``E(p) = kappa s^2 + 2 V_Z^2 (kappa - 2) s + kappa V_Z^4``, ``s = (x - V_X)^2 + (y - V_Y)^2``;
-    ``E = kappa q+ q-`` with ``q+- = s - r+-^2`` (Prop. 1, up to the factor kappa). Returns shape (...).
+    ``E(p) = kappa s^2 + 2 V_Z^2 (kappa - 2) s + kappa V_Z^4`` with
+    ``s = (x - V_X)^2 + (y - V_Y)^2``. It factorises as ``E = kappa q+ q-`` with
+    ``q+- = s - r+-^2`` (Prop. 1; the paper writes E = q+ q-, up to the factor kappa).
+
+    Parameters
+    ----------
+    P : array_like of shape (..., 2) or (..., 3)
+        Points on the plane z = 0.
+    V : array_like of shape (3,)
+        Viewer (and light) position.
+    kappa : float
+        ``1 - tau^2``.
+
+    Returns
+    -------
+    ndarray of shape (...)
     """
     P = _points(P)
     V = np.asarray(V, dtype=np.float64).reshape(3)
@@ -144,10 +173,27 @@ def endoscopic_isocurve(P, V, kappa: float) -> np.ndarray:
 
 
 def isocurve_radii(kappa, V_Z):
-    """Radii (r+, r-) of the two concentric circles of E(p) = 0 (paper Prop. 1), in the unit of V_Z.
+    """Radii (r+, r-) of the two concentric circles of E(p) = 0 (paper Prop. 1).
 
-    ``r+- = |V_Z| sqrt(k +- sqrt(k^2 - 1))``, ``k = (2 - kappa) / kappa``; for kappa in (0, 1),
-    ``r+ > |V_Z| > r- > 0`` and ``r+ r- = V_Z^2``. Raises ValueError if kappa is outside (0, 1].
+    ``r+- = |V_Z| sqrt(k +- sqrt(k^2 - 1))`` with ``k = (2 - kappa) / kappa``; for kappa in (0, 1),
+    ``r+ > |V_Z| > r- > 0`` and ``r+ r- = V_Z^2``.
+
+    Parameters
+    ----------
+    kappa : float or ndarray
+        In (0, 1].
+    V_Z : float
+        Distance from the viewer to the plane (mm).
+
+    Returns
+    -------
+    tuple of float or ndarray
+        (r_plus, r_minus), in the unit of V_Z.
+
+    Raises
+    ------
+    ValueError
+        If kappa is outside (0, 1].
     """
     kappa = np.asarray(kappa, dtype=np.float64)
     if np.any(~((kappa > 0) & (kappa <= 1))):
@@ -161,7 +207,20 @@ def isocurve_radii(kappa, V_Z):
 def isophote_radius(t, n: float, V_Z, c: float = 1.0):
     """Radius of the endoscopic specular isophote of isovalue t: r- of Prop. 1 (paper Prop. 2).
 
-    ``t`` in (0, c), roughness ``n``, camera-to-plane distance ``V_Z`` (mm), peak ``c``; the circle
-    is centred on the foot of the perpendicular from the camera, radius in the unit of V_Z.
+    Parameters
+    ----------
+    t : float or ndarray
+        Isovalue in (0, c).
+    n : float
+        Phong roughness.
+    V_Z : float
+        Camera-to-plane distance, mm.
+    c : float
+        Scale (peak intensity).
+
+    Returns
+    -------
+    float or ndarray
+        Radius in mm of the isophote circle centred on the foot of the perpendicular from the camera.
     """
     return isocurve_radii(kappa_from_isovalue(t, n, c), V_Z)[1]

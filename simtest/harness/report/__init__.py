@@ -72,10 +72,25 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
 
 def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None, plots: bool = True,
                  nightly: dict | None = None, history: list[dict] | None = None) -> Path:
-    """Write the report set of a run to ``<out_dir>/<suite name>/<run id>/`` and return that folder.
+    """Write ``results.json``, ``results.csv``, ``report.md``, ``report.html`` and figures.
 
-    ``run_id`` defaults to :func:`make_run_id` (``<UTC time>-local``); ``plots``, ``nightly`` and
-    ``history`` as for :func:`write_report_files`.
+    Parameters
+    ----------
+    run : simtest.harness.runner.SuiteRun
+        The finished run.
+    out_dir : path
+        Reports root; the files go to ``<out_dir>/<suite name>/<run id>/``.
+    run_id : str or None
+        Default :func:`make_run_id` (``<UTC time>-local``, ignored by git).
+    plots : bool
+        Draw the figures (matplotlib, Agg).
+    nightly, history : optional
+        See :func:`write_report_files`.
+
+    Returns
+    -------
+    Path
+        The run folder.
     """
     run_id = run_id or make_run_id()
     folder = Path(out_dir) / run.suite.name / run_id

@@ -81,8 +81,19 @@ def _diag_text(key: str) -> str:
 
 
 def cell(m: dict | None, show_fail: bool = True) -> str:
-    """One table cell: ``median [p5, p95] (n)`` in degrees, plus ``, fail x %`` when some realisations
-    failed and ``show_fail``; ``-`` when the estimator never succeeded.
+    """One table cell: ``median [p5, p95] (n)`` in degrees, plus the failure rate when not 0.
+
+    Parameters
+    ----------
+    m : dict or None
+        Statistics of :func:`simtest.harness.metrics.summarise`.
+    show_fail : bool
+        Append ``, fail x %`` when some realisations failed.
+
+    Returns
+    -------
+    str
+        ``-`` when the estimator never succeeded (with the failure rate).
     """
     if not m:
         return "-"
@@ -132,7 +143,18 @@ def end_to_end_markdown(results: dict) -> list[str]:
 
 
 def summary_markdown(results: dict) -> list[str]:
-    """The summary section (Markdown lines): family x estimator table, claim verdicts, alarming cells explained."""
+    """The summary section: family x estimator table, claim verdicts, alarming cells explained.
+
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document (schema 2: ``families`` and ``claims``).
+
+    Returns
+    -------
+    list of str
+        Markdown lines.
+    """
     ests = results["suite"]["estimators"]
     fams = results.get("families", {})
     L = ["## Summary given the highlight (not end to end)", ""]
@@ -316,10 +338,22 @@ td:first-child{text-align:left}code{background:#f5f5f5;padding:0 3px}img{max-wid
 
 
 def html_report(markdown: str, images: dict[str, bytes], title: str = "simtest report") -> str:
-    """A self-contained HTML page from the report's Markdown (``figures/<name>`` links).
+    """A self-contained HTML page from the report's Markdown (markdown-it-py, figures inlined).
 
-    Every image found in ``images`` (PNG bytes by file name) is inlined as a
-    ``data:image/png;base64`` URI; a missing one keeps its relative link.
+    Parameters
+    ----------
+    markdown : str
+        The ``report.md`` text; images referenced as ``figures/<name>``.
+    images : dict of str to bytes
+        PNG bytes by file name.
+    title : str
+        Page title.
+
+    Returns
+    -------
+    str
+        HTML5 with every ``figures/<name>`` image replaced by a ``data:image/png;base64`` URI
+        (an image missing from ``images`` keeps its relative link).
     """
     md = MarkdownIt("commonmark").enable("table")
     tokens = md.parse(markdown)

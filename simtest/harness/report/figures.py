@@ -37,7 +37,20 @@ _FAMILY_MARKERS = ("o", "s", "^", "v", "D", "P", "X", "h", "*", "<", ">")
 
 
 def style(estimator: str, order: list[str] | None = None) -> tuple[str, str]:
-    """Colour and marker of an estimator (fixed for the known ones, cycled for others in ``order``)."""
+    """Colour and marker of an estimator (fixed for the known ones, cycled for new ones).
+
+    Parameters
+    ----------
+    estimator : str
+        Estimator name.
+    order : list of str, optional
+        The suite's estimators, to give new names a stable place in the cycle.
+
+    Returns
+    -------
+    (str, str)
+        Matplotlib colour and marker.
+    """
     if estimator in _STYLE:
         return _STYLE[estimator]
     extra = [e for e in (order or [estimator]) if e not in _STYLE]
@@ -46,7 +59,17 @@ def style(estimator: str, order: list[str] | None = None) -> tuple[str, str]:
 
 
 def figure_png(fig) -> bytes:
-    """PNG bytes of a figure as laid out (no tight-bbox cropping); the figure is closed."""
+    """PNG bytes of a figure as laid out (no tight-bbox cropping: what is checked is saved); the
+    figure is closed (pyplot keeps every open figure).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+
+    Returns
+    -------
+    bytes
+    """
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
@@ -68,15 +91,21 @@ def _n_text(ns) -> str:
 
 
 def x_scale(xs) -> tuple[str, float | None]:
-    """The scale of a numeric sweep axis (settings ``xs`` in display units).
+    """The scale of a numeric sweep axis: linear, or logarithmic where its settings are geometric.
+
+    Parameters
+    ----------
+    xs : array_like
+        The settings in display units.
 
     Returns
     -------
     (str, float or None)
-        ``("log", None)`` for three or more positive settings spanning a factor of 8 or more whose
-        gaps are more even in log than in linear; ``("symlog", t)`` for such settings spanning a
-        factor of 20 or more plus 0 (linear within ``t``, the smallest positive setting);
-        ``("linear", None)`` otherwise.
+        ``("log", None)`` for three or more positive settings spanning a factor of 8 or more
+        whose gaps are more even in log than in linear; ``("symlog", t)`` for such settings
+        spanning a factor of 20 or more, plus 0 (linear within ``t``, the smallest positive
+        setting: a narrower span reads better on a linear axis than with a linear stretch
+        around 0); ``("linear", None)`` otherwise.
     """
     x = np.unique(np.asarray(xs, dtype=np.float64))
     x = x[np.isfinite(x)]
@@ -348,12 +377,19 @@ def trend_figure(history: list[dict]):
 def make_figures(results: dict, history: list[dict] | None = None) -> dict:
     """Every figure of a report -> ``{file name: Figure}`` (caller closes them).
 
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document.
+    history : list of dict, optional
+        Nightly history lines; adds ``nightly_trend.png``.
+
     Returns
     -------
     dict of str to matplotlib.figure.Figure
-        ``<sweep>_curves.png`` for every sweep, ``<sweep>_bars.png`` for sweeps that check a paper
-        claim, ``curvature_rho.png`` with curved rendered cases, ``nightly_trend.png`` with a
-        ``history``.
+        ``<sweep>_curves.png`` for every sweep, ``<sweep>_bars.png`` for sweeps that check a
+        paper claim (the paper's figure-3 style), ``curvature_rho.png`` when the suite has
+        curved rendered cases, ``nightly_trend.png`` with a history.
     """
     return {name: draw(*args) for name, draw, _, args in _figure_plan(results, history)}
 
@@ -474,5 +510,18 @@ def _trend_takeaway(history: list[dict]) -> str:
 
 
 def takeaways(results: dict, history: list[dict] | None = None) -> dict[str, str]:
-    """One sentence per figure of :func:`make_figures` (same names), every number read from the results."""
+    """One sentence per figure of :func:`make_figures`, every number read from the results.
+
+    Parameters
+    ----------
+    results : dict
+        A ``results.json`` document.
+    history : list of dict, optional
+        Nightly history lines (the ``nightly_trend.png`` sentence).
+
+    Returns
+    -------
+    dict of str to str
+        ``{figure file name: sentence}`` for the same names :func:`make_figures` draws.
+    """
     return {name: say(*args) for name, _, say, args in _figure_plan(results, history)}

@@ -9,7 +9,19 @@ __all__ = ["esc", "fmt"]
 
 
 def fmt(v, nd: int = 3) -> str:
-    """A number with ``nd`` significant digits, ``-`` for None or NaN."""
+    """A number with ``nd`` significant digits, ``-`` for None or NaN.
+
+    Parameters
+    ----------
+    v : float, int, None
+        The value.
+    nd : int
+        Significant digits.
+
+    Returns
+    -------
+    str
+    """
     if v is None:
         return "-"
     if isinstance(v, int):  # bool too: "True", "False"

@@ -41,14 +41,20 @@ def _versions() -> dict:
 
 
 def provenance(run) -> dict:
-    """Git commit, package versions, Mitsuba variant(s), machine, workers, wall time, speed of a run.
+    """Git commit, package versions, Mitsuba variant(s), machine, workers, wall time, speed.
+
+    Parameters
+    ----------
+    run : simtest.harness.runner.SuiteRun
+        The finished run.
 
     Returns
     -------
     dict
         JSON-ready: ``git_commit``, ``git_dirty`` and ``git_dirty_files`` (None outside a git
-        checkout), ``packages``, ``mitsuba_variants``, ``python``, ``machine``, ``workers``,
-        ``started_utc``, ``wall_time_s`` and ``realisations_per_s`` per protocol.
+        checkout), ``packages`` (version or None), ``mitsuba_variants``, ``python``, ``machine``,
+        ``workers``, ``started_utc``, ``wall_time_s`` (seconds) and ``realisations_per_s`` per
+        protocol (realisations per CPU-second x workers).
     """
     # reports/ holds outputs (earlier reports, the baseline), not code: a run that rewrites them is
     # still a run of the committed code.
@@ -109,13 +115,35 @@ def open_parameters(suite) -> dict:
 
 
 def make_run_id(suffix: str = "local") -> str:
-    """A run id from the current UTC time: ``YYYYmmddTHHMMSSZ-<suffix>`` (no dash for an empty suffix)."""
+    """A run id from the current UTC time.
+
+    Parameters
+    ----------
+    suffix : str
+        Appended after a dash (``-local`` runs are ignored by git); empty for none.
+
+    Returns
+    -------
+    str
+        ``YYYYmmddTHHMMSSZ-<suffix>``.
+    """
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     return f"{now}-{suffix}" if suffix else now
 
 
 def relative_to_repo(path: str) -> str:
-    """``path`` relative to the repository root when it lies inside it, else unchanged."""
+    """``path`` relative to the repository root when it lies inside it, else unchanged.
+
+    Parameters
+    ----------
+    path : str
+        A file path.
+
+    Returns
+    -------
+    str
+        E.g. ``scenes/suites/quick.toml``.
+    """
     try:
         return str(Path(path).resolve().relative_to(_ROOT))
     except ValueError:

@@ -59,15 +59,22 @@ _MESH_KEYS = {"colon_station": "colon", "liver_azimuth_deg": "liver"}
 def case_family(case) -> tuple[str, bool]:
     """The scene family of a case and whether its light is co-located with the camera.
 
+    Parameters
+    ----------
+    case : simtest.harness.suite.Case
+        A case of any protocol.
+
     Returns
     -------
     family : str
-        ``"paper protocol"``; for rendered cases the geometry (``"colon"``, ``"liver"``, the scene's
-        ``geometry.type``, or the scene name), plus ``", light offset"`` when the light is off the
-        camera centre, or ``" under a light rig, light offset"`` for a ``light.rig`` other than
-        "single".
+        ``"paper protocol"`` for the paper's synthetic protocol; for rendered cases the geometry
+        (``"colon"``, ``"liver"``, the scene's ``geometry.type``, or the scene name when it
+        cannot be read), plus ``", light offset"`` when the light is off the camera centre, and
+        ``" under a light rig, light offset"`` for a rig of lights beside the lens (``light.rig``
+        other than "single"), kept apart from one offset light.
     colocated : bool
-        False for the paper protocol, a rendered light offset > 0 and a light rig.
+        False for the paper protocol (its slanted camera does not carry the light), for a
+        rendered light offset > 0 and for a light rig (``light.rig`` other than "single").
     """
     if case.protocol == "paper":
         return "paper protocol", False
@@ -129,8 +136,19 @@ def _families(run, cases: list[dict]) -> dict:
 def build_results(run, run_id: str) -> dict:
     """The ``results.json`` document of a suite run (schema in the module docstring).
 
-    ``run_id`` is written in the document. The ``cases`` and ``families`` numbers depend only on the
-    suite and its seed; ``claims`` holds every decidable claim's verdict.
+    Parameters
+    ----------
+    run : simtest.harness.runner.SuiteRun
+        The finished run.
+    run_id : str
+        Id written in the document (see :func:`simtest.harness.report.make_run_id`).
+
+    Returns
+    -------
+    dict
+        JSON-ready document (angles in degrees); the ``cases`` and ``families`` numbers depend
+        only on the suite and its seed. ``claims`` holds the verdict of every claim of
+        :data:`simtest.harness.claims.CLAIMS` that the suite's cases can decide.
     """
     suite = run.suite
     cases = []
@@ -167,8 +185,17 @@ def build_results(run, run_id: str) -> dict:
 def results_csv(results: dict) -> str:
     """Every case x estimator statistic of a ``results.json`` document as CSV text.
 
-    Header ``case,sweep,family,x,estimator,n,n_ok,failure_rate,mean,std,median,p5,p95,min,max`` (x in
-    display units, degrees; empty where an estimator never succeeded), one row per case and estimator.
+    Parameters
+    ----------
+    results : dict
+        The document.
+
+    Returns
+    -------
+    str
+        Header ``case,sweep,family,x,estimator,n,n_ok,failure_rate,mean,std,median,p5,p95,min,
+        max`` (x in display units, errors in degrees; empty where an estimator never succeeded),
+        then one row per case and estimator in results order.
     """
     scale = {sw["name"]: sw["display_scale"] for sw in results["sweeps"]}
     buf = io.StringIO()

@@ -48,14 +48,34 @@ __all__ = ["DEFAULT_SEED", "FD_STEP_MM", "ColonParams", "HaustralParams", "Liver
 
 
 def build_mesh(name: str, seed: int, **params: Any) -> trimesh.Trimesh:
-    """Build ``"colon"``, ``"colon_haustral"``, ``"liver"`` or ``"liver_abdomen"`` with root ``seed`` (>= 0).
+    """Build ``"colon"``, ``"colon_haustral"``, ``"liver"`` or ``"liver_abdomen"`` (dispatch to
+    :func:`build_colon`, :func:`build_haustral_colon`, :func:`build_liver`,
+    :func:`~simtest.scene.meshes.abdomen.build_liver_in_abdomen`).
 
-    ``**params`` are fields of :class:`ColonParams`, :class:`HaustralParams` or :class:`LiverParams`;
-    ``"liver_abdomen"`` (:func:`~simtest.scene.meshes.abdomen.build_liver_in_abdomen`) defaults to
-    :data:`~simtest.scene.meshes.abdomen.LAPAROSCOPE_WALL_AXIS` and
-    :data:`~simtest.scene.meshes.abdomen.LAPAROSCOPE_ABDOMEN` and also takes the wall's keywords.
-    Returns the generator's trimesh; raises :class:`MeshError` on an unknown name, a bad parameter
-    or a bad seed.
+    Parameters
+    ----------
+    name : {"colon", "colon_haustral", "liver", "liver_abdomen"}
+        The generator. ``"liver_abdomen"`` is the liver with the wall behind it of
+        meshes/liver_abdomen.ply (the laparoscope scene's): its wall's axis and its organs
+        default to :data:`~simtest.scene.meshes.abdomen.LAPAROSCOPE_WALL_AXIS` and
+        :data:`~simtest.scene.meshes.abdomen.LAPAROSCOPE_ABDOMEN`.
+    seed : int
+        Root seed (>= 0; 0 is valid).
+    **params
+        Fields of :class:`ColonParams`, :class:`HaustralParams` or :class:`LiverParams` (lengths
+        in mm); for
+        ``"liver_abdomen"`` also the wall's keywords of ``build_liver_in_abdomen``.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        As returned by the generator: vertices in mm, unit ``vertex_normals``,
+        ``vertex_attributes["k1"]``, ``["k2"]`` in 1/mm (k1 >= k2, module sign convention).
+
+    Raises
+    ------
+    MeshError
+        Unknown name, unknown or out-of-range parameter, or a bad seed.
     """
     def liver_abdomen(seed: int, **p: Any) -> trimesh.Trimesh:
         return build_liver_in_abdomen(seed, **{"wall_axis": LAPAROSCOPE_WALL_AXIS, **LAPAROSCOPE_ABDOMEN, **p})

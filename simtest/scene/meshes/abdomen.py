@@ -48,7 +48,13 @@ LAPAROSCOPE_ABDOMEN = {"gallbladder_centre_mm": (0.3, -27.4, -67.8), "gallbladde
 
 
 def wall_sphere(liver_vertices: np.ndarray, wall_axis, wall_radius_mm: float, gap_mm: float) -> tuple[np.ndarray, float]:
-    """Centre (3,) and radius of the wall's sphere for a liver's vertices (module notes); MeshError if impossible."""
+    """Centre (3,) and radius of the wall's sphere for a liver's vertices (module notes).
+
+    Raises
+    ------
+    MeshError
+        If the axis is zero or the radius does not exceed the liver's reach plus the gap.
+    """
     u = np.asarray(wall_axis, dtype=np.float64)
     if not np.linalg.norm(u) > 0:
         raise MeshError("build_liver_in_abdomen: wall_axis must be a non-zero vector")

@@ -48,7 +48,13 @@ _FRAME_MARGIN_MM = 20.0
 
 
 class HaustralColon:
-    """Closed form of the haustral colon for one parameter set ``p`` and ``seed`` (module notes)."""
+    """Closed form of the haustral colon for one parameter set and seed (module notes).
+
+    Parameters
+    ----------
+    p : HaustralParams
+    seed : int
+    """
 
     def __init__(self, p: HaustralParams, seed: int) -> None:
         self.p = p

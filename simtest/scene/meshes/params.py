@@ -87,7 +87,13 @@ class ColonParams:
     ring_curvature_weight_mm: Annotated[MeshNum, Field(ge=0.0)] = 40.0
 
     def validate(self) -> None:
-        """Check that the lumen neither closes nor folds; MeshError names the parameter at fault."""
+        """Check that the lumen neither closes nor folds (the fields' ranges are their types').
+
+        Raises
+        ------
+        MeshError
+            Naming the parameter at fault and its value.
+        """
         r_min = self.radius_mm * (1.0 - self.taenia_indent) - self.fold_depth_mm
         limit = self.radius_mm * (0.9 - self.taenia_indent)
         if r_min <= 0.1 * self.radius_mm:
@@ -246,7 +252,13 @@ class HaustralParams:
     ring_curvature_weight_mm: Annotated[MeshNum, Field(ge=0.0)] = 6.0
 
     def validate(self) -> None:
-        """Check that the lumen neither closes nor folds; MeshError names the parameter at fault."""
+        """Check the lumen against closing or folding (the fields' ranges are their types').
+
+        Raises
+        ------
+        MeshError
+            Naming the parameter that is out of range and its value.
+        """
         r0 = 0.5 * self.diameter_mm
         r_min = (r0 * (1.0 - self.diameter_variation) - self.taenia_indent_mm
                  - self.fold_height_mm * (1.0 + self.fold_height_variation))
