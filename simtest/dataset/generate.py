@@ -163,7 +163,10 @@ def _prepare(config: DatasetConfig, out: Path) -> set[int]:
 
 
 def _remove(p: Path) -> None:
-    shutil.rmtree(p) if p.is_dir() else p.unlink()
+    if p.is_dir():
+        shutil.rmtree(p)
+    else:
+        p.unlink()
 
 
 def _json_equal(a, b) -> bool:
