@@ -145,7 +145,8 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
           "lowest cannot be told apart from another. Other estimators count where scored on at "
           f"least {MIN_SHARE_OF_HIGHLIGHTS:.0%} of the row's highlights.",
           "¹ No recommended normal: suites of the paper's protocol (co-located light) score the "
-          "estimators alone. ² Run before the end-to-end records: to regenerate.",
+          "estimators alone." + (" ² Run before the end-to-end records: to regenerate."
+                                 if any("- ² |" in row for row in L) else ""),
           "", END]
     return "\n".join(L) + "\n"
 
