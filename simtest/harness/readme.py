@@ -144,10 +144,8 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
           "the 95 % confidence interval", "of the difference (the reports' rule); none where the "
           "lowest cannot be told apart from another. Other estimators count where scored on at "
           f"least {MIN_SHARE_OF_HIGHLIGHTS:.0%} of the row's highlights.",
-          "¹ No recommended normal: suites of the paper's protocol (co-located light) score the "
-          "estimators alone." + (" ² Run before the end-to-end records: to regenerate."
-                                 if any("- ² |" in row for row in L) else ""),
-          "", END]
+          "¹ No recommended normal: suites of the paper's protocol (co-located light) score the estimators alone."
+          + (" ² Run before the end-to-end records: to regenerate." if any("- ² |" in x for x in L) else ""), "", END]
     return "\n".join(L) + "\n"
 
 

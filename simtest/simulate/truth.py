@@ -361,14 +361,12 @@ def sphere_highlight(center: np.ndarray, radius: float, light: np.ndarray, K: np
         return c + radius * n, n
 
     def minimiser():  # parameters of surface(): the tangent-plane coordinates of the normal
-        # (L - c)'s part across n0 is L's (c lies along n0): taken from L, it keeps its digits
-        # where the light is a hair off the line of camera and centre
-        w = L - c
-        wp = L - np.dot(L, n0) * n0
-        if np.linalg.norm(wp) <= 1e-15 * np.linalg.norm(w):  # light on the line of camera and centre
-            return np.zeros(2) if np.dot(w, n0) > radius else None
+        dc = float(np.linalg.norm(c))
+        wp = L - np.dot(L, n0) * n0  # (L - c) across n0, from L alone (c lies along n0): no cancellation
+        if np.linalg.norm(wp) <= 1e-15 * np.linalg.norm(L - c):  # light on the line of camera and centre
+            return np.zeros(2) if dc + np.dot(L, n0) > radius else None
         f2 = unit(wp, axis=-1)
-        om = circle_reflection([np.linalg.norm(c), 0.0], [np.linalg.norm(c) + np.dot(L, n0), np.dot(L, f2)], radius)
+        om = circle_reflection([dc, 0.0], [dc + np.dot(L, n0), np.dot(L, f2)], radius)
         if om is None:
             return None
         if not om[0] > 0.0:  # beyond the tangent parametrisation (the far hemisphere)
