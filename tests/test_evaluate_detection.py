@@ -243,6 +243,16 @@ def test_a_paper_suite_is_refused_in_one_line(tmp_path):
     assert len(res.output.strip().splitlines()) == 1 and "rendered" in res.output
 
 
+def test_an_image_as_the_source_is_refused_in_one_line_naming_what_is_taken(tmp_path):
+    # a frame given where labels, a scene or a suite belong was parsed as TOML ("<toml>: Expected '='")
+    frame = tmp_path / "frame.png"
+    frame.write_bytes(b"not a png")
+    res = CliRunner().invoke(app, ["evaluate", "detection", str(frame), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 2 and res.output.strip().splitlines() == [
+        f"error: {frame}: not a labelled set (.json), a scene or a suite (.toml or a bundled name)"]
+    assert not (tmp_path / "out").exists()
+
+
 def test_the_cross_validation_takes_the_estimates_the_scoring_made():
     """`evaluate detection` on a labelled set reconstructs each frame once for its scores and hands
     those estimates to the confidence's cross-validation (evaluate_frames' keep): the same report

@@ -164,6 +164,8 @@ def detection_command(
     status 2: bad input; 4: OUT cannot be written.
     """
     target = check_out_folder(out, DETECTION_FILES)
+    if Path(source).suffix.lower() not in ("", ".json", ".toml"):  # an image or another file
+        fail(f"{source}: not a labelled set (.json), a scene or a suite (.toml or a bundled name)", BAD_INPUT)
     kept: list = []  # each frame's estimates, for the confidence's cross-validation
     try:
         with Progress(transient=True) as progress:
@@ -216,8 +218,7 @@ def _detection_markdown(results: dict) -> str:
          "Targets are the labelled isolated specular highlights; a candidate or an ok estimate is a "
          "true positive when it is the first to fall on a target (a rendered target that gathers k "
          "lights' highlights: one of the first k; see simtest.evaluate.detection). Renders are "
-         "reconstructed with their camera file's light rig, as simtest reconstruct runs them.",
-         ""]
+         "reconstructed with their camera file's light rig, as simtest reconstruct runs them.", ""]
     head = ["| {} | targets | candidates | precision | recall | ok | ok precision | ok recall | ok F1 | "
             "not examined |", "|---|---|---|---|---|---|---|---|---|---|"]
 
