@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import tomllib
 from typing import Annotated, Any, Callable, TypeVar, get_args, get_origin
 
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, Strict, TypeAdapter, ValidationError
@@ -17,7 +18,7 @@ from pydantic import AfterValidator, BeforeValidator, ConfigDict, Strict, TypeAd
 from simtest._checks import keyed_error
 
 __all__ = ["CONFIG", "Num", "Int", "Str", "Bool", "Vec2", "Vec3", "Floats", "Number", "Scalar", "key_path",
-           "validated", "validation_error"]
+           "parse_toml", "validated", "validation_error"]
 
 E = TypeVar("E", bound=Exception)
 
@@ -200,6 +201,20 @@ def _plain(value: Any) -> Any:
         return value
     except (TypeError, ValueError):
         return repr(value)
+
+
+def parse_toml(data: bytes, source, error: type[Exception]) -> dict:
+    """The table of a TOML file's bytes ``data``, or ``error("<source>: not valid TOML: <why>")``.
+
+    Raises
+    ------
+    error
+        When ``data`` is not UTF-8 (an image given for a config, say) or not TOML.
+    """
+    try:
+        return tomllib.loads(data.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise error(f"{source}: not valid TOML: {exc}") from None
 
 
 @functools.cache

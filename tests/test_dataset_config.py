@@ -80,7 +80,7 @@ def test_bad_config_names_file_key_and_value(cfg, key, value):
 def test_load_config_reports_toml_syntax_and_missing_file(tmp_path):
     p = tmp_path / "broken.toml"
     p.write_text("count = = 3\n")
-    with pytest.raises(DatasetConfigError, match="broken.toml: TOML syntax error"):
+    with pytest.raises(DatasetConfigError, match="broken.toml: not valid TOML"):
         load_config(p)
     with pytest.raises(DatasetConfigError, match="nope.toml: cannot read"):
         load_config(tmp_path / "nope.toml")

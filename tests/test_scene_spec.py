@@ -82,7 +82,7 @@ def test_plane_58deg_field_of_view_shows_the_t01_isophote():
          "light.falloff", "expected a string"),
         ("[camera]\nfov_deg = 90\nfocal_px = 100\n[geometry]\ntype='sphere'\ncenter_mm=[0,0,9]\nradius_mm=1\n",
          "camera.focal_px", "not both"),
-        ("[geometry\ntype='sphere'\n", "<toml>", ""),
+        ("[geometry\ntype='sphere'\n", "not valid TOML", "line 1"),
     ],
 )
 def test_bad_scene_file_gives_one_readable_error(tmp_path, text, key, reason):

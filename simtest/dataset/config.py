@@ -20,7 +20,6 @@ import functools
 import hashlib
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -30,7 +29,7 @@ from pydantic import Field
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from simtest._checks import format_value, keyed_error
-from simtest._config import CONFIG, Bool, Int, Num, Scalar, Str, validated
+from simtest._config import CONFIG, Bool, Int, Num, Scalar, Str, parse_toml, validated
 from simtest._io import jsonable
 from simtest.scene.spec import Variant
 
@@ -659,11 +658,7 @@ def load_config(path) -> DatasetConfig:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        data = path.read_bytes()
     except OSError as exc:
         raise DatasetConfigError(f"{path}: cannot read the config: {exc.strerror or exc}") from exc
-    try:
-        d = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise DatasetConfigError(f"{path}: TOML syntax error: {exc}") from exc
-    return config_from_dict(d, source=str(path))
+    return config_from_dict(parse_toml(data, path, DatasetConfigError), source=str(path))

@@ -44,7 +44,6 @@ import functools
 import hashlib
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping
@@ -53,7 +52,7 @@ from pydantic import AfterValidator, Field
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from simtest._checks import keyed_error
-from simtest._config import CONFIG, Int, Number, Str, validated
+from simtest._config import CONFIG, Int, Number, Str, parse_toml, validated
 from simtest._io import jsonable
 from simtest.harness.claims import PAPER_CHECKS
 from simtest.harness.cases import (MESH_POSE_KEYS, RECON_KEYS, RENDERED_KEYS, Case,
@@ -330,10 +329,7 @@ def load_suite(name_or_path: str | Path) -> Suite:
     """
     path = resolve_suite_path(name_or_path)
     data = path.read_bytes()
-    try:
-        raw = tomllib.loads(data.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise SuiteError(f"{path}: not valid TOML: {e}") from None
+    raw = parse_toml(data, path, SuiteError)
     return suite_from_dict(raw, source=str(path), sha256=hashlib.sha256(data).hexdigest())
 
 

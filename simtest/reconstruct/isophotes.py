@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from simtest._records import fast_init
-from simtest.decisions import ROI_GROWTH_FACTOR, ROI_MAX_GROWTHS
+from simtest.decisions import AUTO_LOCAL_BACKGROUND_REL, ROI_GROWTH_FACTOR, ROI_MAX_GROWTHS
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate, _Draft, _Pending
 from simtest.reconstruct.cone_fit import FitFrame, fit_frame, fit_frames
@@ -22,7 +22,7 @@ from simtest.reconstruct.frame_prep import LUMA_FRAME_MIN_HIGHLIGHTS, _Frame, _s
 from simtest.reconstruct.isophote import (MIN_CONTOUR_POINTS, _box_answer, _box_contours,
                                           _component_box, _cut_and_contour, _extract, _isophote_of, _region, _Region)
 from simtest.reconstruct.marching import batch_contours
-from simtest.reconstruct.settings import AUTO_LOCAL_BACKGROUND_REL, Normalisation
+from simtest.reconstruct.settings import Normalisation
 
 _TINY, _ONE_TAP = float(np.finfo(float).tiny), np.ones(1)
 

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from simtest.decisions import AUTO_LOCAL_BACKGROUND_REL, BRIGHTNESS_REL, FRAME_ISOVALUES, MIN_AREA_PX, PEAK_REL
+from simtest.decisions import BRIGHTNESS_REL, FRAME_ISOVALUES, MIN_AREA_PX, PEAK_REL
 
 __all__ = ["MAX_CANDIDATES", "Normalisation", "ReconSettings", "validate_isovalues"]
 

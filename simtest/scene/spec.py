@@ -35,7 +35,6 @@ import dataclasses
 import functools
 import math
 import os
-import tomllib
 from dataclasses import field
 from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping, get_args
@@ -45,7 +44,7 @@ from pydantic import Field
 from pydantic.dataclasses import dataclass
 
 from simtest._checks import keyed_error
-from simtest._config import CONFIG, Floats, Int, Num, Str, Vec2, Vec3, validated
+from simtest._config import CONFIG, Floats, Int, Num, Str, Vec2, Vec3, parse_toml, validated
 from simtest.constants import MAX_SEED
 from simtest.scene.kinds import (GEOMETRY_KEY_ORDER, GEOMETRY_KEYS, GEOMETRY_TYPES, CylinderGeometry, GeometrySpec,
                                  MeshGeometry, PlaneGeometry, SaddleGeometry, SphereGeometry)
@@ -594,11 +593,7 @@ def load_scene(path: str | Path) -> SceneSpec:
                              f"({exc.args[0]})") from None
     if not p.is_file():
         raise SceneError(f"{p}: no such file")
-    try:
-        with open(p, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{p}: <toml>: {exc}") from None
+    data = parse_toml(p.read_bytes(), p, SceneError)
     spec = scene_from_dict(data, source=str(p), base_dir=p.resolve().parent)
     if "name" not in data:
         spec = dataclasses.replace(spec, name=p.stem)
