@@ -16,6 +16,7 @@ from simtest.harness.metrics import MATCH_PX, summarise_records
 from simtest.harness.protocols import make_runner, realisation_overrides
 from simtest.harness.suite import load_suite
 from simtest.reconstruct.settings import ReconSettings
+from simtest.render.truth import lobe_peak, smoothed_specular
 
 #: The harness and the command line make the same call on the same pixels, camera file and
 #: settings, so statuses, BPs and normals are identical; the errors are compared to 1e-9 deg only
@@ -42,8 +43,13 @@ def _cli_records(render_dir, est_dir) -> list[dict]:
                     "error_deg": math.nan if s is None or s["normal"] is None else
                     float(angle_between_deg(np.asarray(s["normal"], float), np.asarray(h["normal"], float)))})
     true_bps = [np.asarray(h["bp_px"], float) for h in truth["highlights"] + truth["relief_highlights"]]
-    out[0]["frame_false_ok"] = float(sum(1 for s, b in zip(found, bps) if s["status"] == "ok" and all(
-        float(np.linalg.norm(b - t)) > MATCH_PX for t in true_bps)))
+    far = [b for s, b in zip(found, bps) if s["status"] == "ok" and all(
+        float(np.linalg.norm(b - t)) > MATCH_PX for t in true_bps)]
+    gt = np.load(render_dir / "ground_truth.npz")  # the specular-only image a user has beside the frame
+    valid = gt["mask"] & (gt["field_stop"] if "field_stop" in gt.files else True)
+    lobes = [b for b in far if lobe_peak(smoothed_specular(gt["specular"]), valid, b) is not None]
+    out[0]["frame_false_ok"] = float(len(far) - len(lobes))
+    out[0]["frame_lobe_ok_deg"] = [math.nan] * len(lobes)
     return out
 
 
@@ -81,7 +87,7 @@ def test_the_harness_end_to_end_figures_are_what_render_then_reconstruct_give(tm
     a, b = summarise_records(harness), summarise_records([{**u, "truth": True, "depth_err_pct": math.nan}
                                                           for u in user])
     for key in ("n", "detected", "ok", "within_1deg", "within_5deg", "n_ok", "statuses", "normal_from",
-                "false_ok_per_frame"):
+                "false_ok_per_frame", "lobe_ok_per_frame"):
         assert a[key] == b[key], key
     assert abs(a["median_ok_deg"] - b["median_ok_deg"]) <= ERROR_TOL_DEG
     assert a["n_ok"] >= 1  # the case really reconstructs (equal NaNs would prove nothing)
@@ -94,8 +100,8 @@ def _rec(status, err, **kw):
 
 
 def test_the_figures_count_every_true_highlight_and_the_median_only_the_accepted():
-    recs = [_rec("ok", 0.5, frame={"frame_false_ok": 2.0}), _rec("ok", 3.0, depth=1.0),
-            _rec("cluster", 0.8, src="bp_ray"), _rec("not_detected", math.nan),
+    recs = [_rec("ok", 0.5, frame={"frame_false_ok": 2.0, "frame_lobe_ok_deg": [4.0, 1.0, 2.0]}),
+            _rec("ok", 3.0, depth=1.0), _rec("cluster", 0.8, src="bp_ray"), _rec("not_detected", math.nan),
             {"truth": False, "frame_false_ok": 0.0}]  # a frame without an in-frame highlight
     e = summarise_records(recs)
     assert e["n"] == 4 and e["detected"] == 0.75 and e["ok"] == 0.5
@@ -103,6 +109,8 @@ def test_the_figures_count_every_true_highlight_and_the_median_only_the_accepted
     assert e["within_1deg"] == 0.5 and e["within_5deg"] == 0.75
     assert e["n_ok"] == 2 and e["median_ok_deg"] == 1.75 and e["median_ok_depth_err_pct"] == 1.0
     assert e["false_ok_per_frame"] == 1.0  # two frames, two false ok
+    # oks on lobe peaks count apart, never among the true highlights' figures above
+    assert e["lobe_ok_per_frame"] == 1.5 and e["median_lobe_ok_deg"] == 2.0
     assert e["statuses"] == {"cluster": 1, "not_detected": 1, "ok": 2}
     assert e["normal_from"] == {"bp_ray": 1, "none": 1, "photometric_fit": 2}
     assert summarise_records([]) is None

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simtest.render.truth import highlight_targets
+from simtest.render.truth import LOBE_MATCH_PX, highlight_targets, lobe_peak, smoothed_specular
 from simtest.simulate.truth import HighlightTruth
 
 
@@ -98,3 +98,34 @@ def test_distance_to_a_target_is_to_the_hull_of_its_points():
     assert len(t.lights) == 8
     assert t.distance_px((80.0, 50.0)) == 0.0 and t.distance_px((81.0, 51.5)) == 0.0
     assert t.distance_px((80.0, 60.0)) == pytest.approx(6.0, abs=0.4)  # the hull's edge is ~4 px out
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(10.0, 150.0), st.floats(10.0, 90.0), st.floats(1.5, 6.0), st.floats(-1.8, 1.8), st.floats(-1.8, 1.8))
+def test_a_lobe_peak_is_found_from_a_bp_on_it_and_nowhere_else(u, v, sigma, du, dv):
+    # an isolated Gaussian lobe: the climb from a BP within LOBE_MATCH_PX ends on the lobe's maximum pixel
+    # (offsets of at most 1.8 px a side, plus a pixel of rounding each, stay within the 4 px bound)
+    spec = _lobe(SHAPE, (u, v), sigma)
+    sm = smoothed_specular(spec)
+    if not highlight_targets([_truth((u, v))], spec, VALID):
+        return  # a lobe cut by the frame border is no isolated highlight either way
+    peak = lobe_peak(sm, VALID, (u + du, v + dv))
+    assert peak is not None
+    r, c = np.unravel_index(int(np.argmax(sm)), sm.shape)
+    assert peak.tolist() == [c, r]
+    # a detection on the lobe's flank farther than the bound climbs to the same peak, too far to be its own
+    far = (c + 3 * LOBE_MATCH_PX, r) if c + 3 * LOBE_MATCH_PX < SHAPE[1] else (c - 3 * LOBE_MATCH_PX, r)
+    assert lobe_peak(sm, VALID, far) is None
+
+
+def test_a_speckle_field_or_a_lobe_outside_the_valid_pixels_has_no_lobe_peak():
+    rng = np.random.default_rng(0)
+    # micro-relief sparkle over the whole view: its half-maximum regions run together and reach the border
+    speckle = rng.exponential(1.0, SHAPE).astype(np.float32)
+    sm = smoothed_specular(speckle)
+    assert all(lobe_peak(sm, VALID, (u, v)) is None for u in range(20, 140, 20) for v in range(20, 80, 20))
+    spec = _lobe(SHAPE, (50, 50), 4.0)
+    valid = VALID.copy()
+    valid[:, 48:] = False  # the field stop cuts the lobe
+    assert lobe_peak(smoothed_specular(spec), valid, (50, 50)) is None
+    assert lobe_peak(smoothed_specular(spec), VALID, (50, 50)).tolist() == [50, 50]

@@ -19,6 +19,8 @@ from simtest.geometry.response import video_response
 from simtest.harness.estimators import score
 from simtest.harness.metrics import MATCH_PX
 from simtest.reconstruct.cli import reconstruct_single
+from simtest.render.truth import lobe_peak, smoothed_specular
+from simtest.simulate.truth import bisector
 
 __all__ = ["user_camera_file", "frame_records"]
 
@@ -37,15 +39,17 @@ def frame_records(result, depth_errors) -> list[dict]:
     Each holds ``truth``, ``detected``, ``distance_px``, ``status`` (``not_detected`` where none
     matched), ``normal_from``, ``error_deg`` and ``depth_err_pct`` (``depth_errors(estimate,
     highlight, rig)["recommended_depth_err_pct"]``); the first also ``frame_false_ok``, the ok
-    detections farther than ``MATCH_PX`` from every true highlight. A frame without an in-frame
-    highlight gives one record with ``truth`` False.
+    detections farther than ``MATCH_PX`` from every true highlight and on no specular lobe, and
+    ``frame_lobe_ok_deg``, the errors of those on a lobe with no exact BP (:func:`_lobe_errors`). A
+    frame without an in-frame highlight gives one record with ``truth`` False.
     """
     cam = user_camera_file(result)
     ests, _ = reconstruct_single(np.asarray(result.frame), cam)
     found = [(e, np.asarray(e.bp_px, float)) for e in ests if getattr(e, "bp_px", None) is not None]
     truths = [np.asarray(h.bp_px, float) for h in (*result.highlights, *result.relief_highlights)]
-    false_ok = sum(1 for e, bp in found if e.status == "ok"
-                   and all(float(np.linalg.norm(bp - t)) > MATCH_PX for t in truths))
+    far = [(e, bp) for e, bp in found if e.status == "ok"
+           and all(float(np.linalg.norm(bp - t)) > MATCH_PX for t in truths)]
+    lobes = _lobe_errors(result, far)
     out = []
     for h in (h for h in result.highlights if getattr(h, "in_frame", True)):
         dist, best = min(((float(np.linalg.norm(bp - np.asarray(h.bp_px, float))), i)
@@ -58,5 +62,30 @@ def frame_records(result, depth_errors) -> list[dict]:
                     "normal_from": None if rec is None else str(rec.normal_from), "error_deg": err,
                     "depth_err_pct": depth_errors(e, h, cam.lights)["recommended_depth_err_pct"]})
     out = out or [{"truth": False}]
-    out[0]["frame_false_ok"] = float(false_ok)
+    out[0]["frame_false_ok"] = float(len(far) - len(lobes))
+    out[0]["frame_lobe_ok_deg"] = lobes
+    return out
+
+
+def _lobe_errors(result, far) -> list[float]:
+    """The recommended normal's error, deg, of each ok detection ``far`` from every listed highlight that sits
+    on a specular lobe's peak (:func:`simtest.render.truth.lobe_peak`), against the surface normal there with
+    the light whose bisector lies nearest it."""
+    spec = getattr(result, "specular", None)
+    if not far or spec is None or np.asarray(spec).ndim != 2:
+        return []
+    sm = smoothed_specular(spec)
+    valid = np.asarray(result.mask, bool) & (True if result.field_stop is None else np.asarray(result.field_stop))
+    lights = (np.asarray(result.light_pos, float)[None] if result.lights is None
+              else np.asarray(result.lights.positions, float))
+    out = []
+    for e, bp in far:
+        peak = lobe_peak(sm, valid, bp)
+        if peak is None:
+            continue
+        v, u = int(peak[1]), int(peak[0])
+        n, p = np.asarray(result.normals[v, u], float), np.asarray(result.position[v, u], float)
+        light = int(np.argmax(bisector(p[None], lights) @ n))
+        err = score(e, n, ("recommended",), light=light)["recommended"][0]
+        out.append(float(err))
     return out

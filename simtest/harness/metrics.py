@@ -122,7 +122,10 @@ def summarise_records(records) -> dict | None:
         ``n`` (true highlights), ``detected`` and ``ok`` (shares), ``within_1deg`` and
         ``within_5deg`` (shares whose recommended normal errs at most that much, whatever its
         status), ``n_ok`` and ``median_ok_deg``, ``median_ok_depth_err_pct``,
-        ``false_ok_per_frame``, ``statuses`` and ``normal_from`` (counts), ``match_px``.
+        ``false_ok_per_frame`` (ok detections on no listed highlight and no specular lobe),
+        ``lobe_ok_per_frame`` and ``median_lobe_ok_deg`` (those on a lobe peak with no exact BP,
+        scored against the surface normal there), ``statuses`` and ``normal_from`` (counts),
+        ``match_px``.
     """
     records = list(records)
     if not records:
@@ -131,6 +134,7 @@ def summarise_records(records) -> dict | None:
     err = np.array([r["error_deg"] for r in t], dtype=np.float64)
     ok = np.array([r["status"] == "ok" for r in t], dtype=bool)
     fo = np.array([r["frame_false_ok"] for r in records if "frame_false_ok" in r], dtype=np.float64)
+    lobe = np.array([x for r in records for x in r.get("frame_lobe_ok_deg", ())], dtype=np.float64)
     dep = np.array([r["depth_err_pct"] for r in t], dtype=np.float64)[ok] if t else np.zeros(0)
     dep = dep[np.isfinite(dep)]
     okerr = err[ok & np.isfinite(err)] if t else err
@@ -141,6 +145,8 @@ def summarise_records(records) -> dict | None:
             "n_ok": int(okerr.size), "median_ok_deg": float(np.median(okerr)) if okerr.size else None,
             "median_ok_depth_err_pct": float(np.median(dep)) if dep.size else None,
             "false_ok_per_frame": float(np.mean(fo)) if fo.size else None,
+            "lobe_ok_per_frame": lobe.size / fo.size if fo.size else None,
+            "median_lobe_ok_deg": float(np.median(lobe[np.isfinite(lobe)])) if np.isfinite(lobe).any() else None,
             "statuses": dict(sorted(Counter(r["status"] for r in t).items())),
             "normal_from": dict(sorted(Counter(r["normal_from"] or "none" for r in t).items())),
             "match_px": MATCH_PX}

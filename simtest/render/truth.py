@@ -22,7 +22,8 @@ from simtest.reconstruct.detect import ellipticity
 from simtest.simulate.truth import HighlightTruth, bisector, pixel_in_frame
 
 __all__ = ["Caster", "bisector_cos_image", "mesh_highlight_candidates", "mesh_highlights", "ReliefHighlight",
-           "relief_highlights", "HighlightTarget", "highlight_targets"]
+           "relief_highlights", "HighlightTarget", "highlight_targets",
+           "LOBE_MATCH_PX", "lobe_peak", "smoothed_specular"]
 
 
 def bisector_cos_image(normals: np.ndarray, position: np.ndarray, mask: np.ndarray, light: np.ndarray) -> np.ndarray:
@@ -284,6 +285,10 @@ TARGET_SIGMA_PX = 2.0
 TARGET_REL = 0.5
 #: :func:`highlight_targets`: the detector's bound on ellipticity, applied to the region
 TARGET_ELLIPTICITY_MIN = 0.75
+#: :func:`lobe_peak`: how far a lobe's smoothed peak may lie from a detection's BP, px: twice
+#: :data:`TARGET_SIGMA_PX`, as smoothing moves an asymmetric lobe's peak by up to about sigma and the BP is the
+#: sensor image's brightest pixel, not the specular image's (a geometric bound, not tuned on any data)
+LOBE_MATCH_PX = 2.0 * TARGET_SIGMA_PX
 
 
 @dataclass(frozen=True)
@@ -341,6 +346,61 @@ def _climb(values: np.ndarray, r: int, c: int) -> tuple[int, int]:
         r, c = r0 + int(i), c0 + int(j)
 
 
+def _half_max_region(sm: np.ndarray, valid: np.ndarray, r: int, c: int, level: float,
+                     ellipticity_min: float) -> tuple[np.ndarray, bool]:
+    """The 8-connected region of ``sm >= level`` holding (r, c), holes filled, and whether it is an isolated
+    elliptical highlight: within ``valid``, off the image border, ellipticity in [e_min, 1 / e_min]."""
+    H, W = sm.shape
+    lab, _ = ndimage.label(sm >= level, structure=np.ones((3, 3), bool))
+    region = ndimage.binary_fill_holes(lab == lab[r, c])
+    rr, cc = np.nonzero(region)
+    inside = bool(valid[region].all()) and rr.min() > 0 and cc.min() > 0 and rr.max() < H - 1 and cc.max() < W - 1
+    return region, inside and bool(ellipticity_min <= ellipticity(region) <= 1.0 / ellipticity_min)
+
+
+def smoothed_specular(specular: np.ndarray, sigma_px: float = TARGET_SIGMA_PX) -> np.ndarray:
+    """The specular-only image smoothed by a Gaussian of ``sigma_px`` (reflected border), float32, (H, W)."""
+    return cv2.GaussianBlur(np.nan_to_num(np.asarray(specular, dtype=np.float32)), (0, 0), float(sigma_px),
+                            borderType=cv2.BORDER_REFLECT)
+
+
+def lobe_peak(sm: np.ndarray, valid: np.ndarray, uv, *, radius_px: float = LOBE_MATCH_PX, rel: float = TARGET_REL,
+              ellipticity_min: float = TARGET_ELLIPTICITY_MIN) -> np.ndarray | None:
+    """The peak of an isolated specular lobe at ``uv``: where a curved surface's normal comes near the bisector
+    without reaching it, the specular reflection still makes a highlight, with no exact BP to list.
+
+    The smoothed specular image is climbed (steepest ascent) from ``uv``; the maximum reached is a lobe peak
+    when it lies within ``radius_px`` of ``uv`` and its half-maximum region passes :func:`highlight_targets`'s
+    rules (1) and (2): inside ``valid``, off the border, elliptical. A speckle field of micro-relief fails them
+    (its half-maximum regions run together), as does a detection on diffuse texture (no specular peak near).
+
+    Parameters
+    ----------
+    sm : ndarray of shape (H, W)
+        :func:`smoothed_specular` of the render.
+    valid : ndarray of shape (H, W), bool
+        Pixels that show the surface within the scope's field stop.
+    uv : array_like of shape (2,)
+        [u, v] of a detection's BP, px.
+    radius_px, rel, ellipticity_min : float
+        See :data:`LOBE_MATCH_PX`, :data:`TARGET_REL`, :data:`TARGET_ELLIPTICITY_MIN`.
+
+    Returns
+    -------
+    ndarray of shape (2,) or None
+        [u, v] of the lobe's peak, px; None where there is none.
+    """
+    H, W = sm.shape
+    r, c = int(round(float(uv[1]))), int(round(float(uv[0])))
+    if not (0 <= r < H and 0 <= c < W):
+        return None
+    pr, pc = _climb(sm, r, c)
+    if not sm[pr, pc] > 0 or math.hypot(pr - r, pc - c) > radius_px or not valid[pr, pc]:
+        return None
+    _, fair = _half_max_region(sm, np.asarray(valid, dtype=bool), pr, pc, rel * float(sm[pr, pc]), ellipticity_min)
+    return np.array([pc, pr], dtype=np.float64) if fair else None
+
+
 def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, valid: np.ndarray,
                       *, sigma_px: float = TARGET_SIGMA_PX, rel: float = TARGET_REL,
                       ellipticity_min: float = TARGET_ELLIPTICITY_MIN) -> list[HighlightTarget]:
@@ -370,8 +430,7 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
         Brightest first.
     """
     H, W = specular.shape
-    sm = cv2.GaussianBlur(np.asarray(specular, dtype=np.float32), (0, 0), float(sigma_px),
-                          borderType=cv2.BORDER_REFLECT)
+    sm = smoothed_specular(specular, sigma_px)
     valid = np.asarray(valid, dtype=bool)
     cand = []
     for h in highlights:
@@ -388,12 +447,7 @@ def highlight_targets(highlights: list[HighlightTruth], specular: np.ndarray, va
         if home is not None:
             home["members"].append(h)
             continue
-        lab, _ = ndimage.label(sm >= rel * peak, structure=np.ones((3, 3), bool))
-        region = ndimage.binary_fill_holes(lab == lab[r, c])
-        rr, cc = np.nonzero(region)
-        inside = bool(valid[region].all()) and rr.min() > 0 and cc.min() > 0 and rr.max() < H - 1 and cc.max() < W - 1
-        e = ellipticity(region)
-        fair = inside and bool(ellipticity_min <= e <= 1.0 / ellipticity_min)
+        region, fair = _half_max_region(sm, valid, r, c, rel * peak, ellipticity_min)
         pr, pc = _climb(sm, r, c)
         groups.append({"region": region, "members": [h], "fair": fair, "peak": np.array([pc, pr], dtype=np.float64)})
     return [HighlightTarget(np.array([m.bp_px for m in g["members"]], dtype=np.float64),

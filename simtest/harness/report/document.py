@@ -117,6 +117,14 @@ BEST_RULE = (f"A row's lowest median is in bold, marked (best), only where it is
              "with every one; no mark where all tie.")
 
 
+def lobe_cell(e: dict) -> str:
+    """``"<ok on a lobe per frame> (<median error> deg)"`` of end-to-end figures ``e`` ("-" before lobes were scored)."""
+    if e.get("lobe_ok_per_frame") is None:
+        return "-"
+    med = e.get("median_lobe_ok_deg")
+    return fmt(e["lobe_ok_per_frame"]) + ("" if med is None else f" ({fmt(med)} deg)")
+
+
 def end_to_end_markdown(results: dict) -> list[str]:
     """The report's headline: per family, what ``simtest render`` + ``simtest reconstruct`` give a
     user (:mod:`simtest.harness.end_to_end`); no lines where no family has end-to-end records."""
@@ -128,17 +136,19 @@ def end_to_end_markdown(results: dict) -> list[str]:
          "defaults and the render's `camera.json` (model, light rig, response): detected (a detection "
          f"within {fmt(next(iter(fams.values()))['match_px'])} px), status ok, the share whose "
          "recommended normal (whatever its status: what the user gets) errs at most 1 and 5 deg, the "
-         "median error over those ok, false ok per frame (ok detections far from every true highlight), "
+         "median error over those ok, false ok per frame (ok detections far from every true highlight and "
+         "on no specular lobe), ok per frame on a lobe's peak where a curved surface's normal nears the "
+         "bisector without an exact BP (median error against the surface normal there), "
          "and what the recommended normals came from.", "",
          "| family | highlights | detected | ok | within 1 deg | within 5 deg | median ok (n) "
-         "| false ok per frame | normal from |", "|---" * 9 + "|"]
+         "| false ok per frame | ok on a lobe per frame (median) | normal from |", "|---" * 10 + "|"]
     for name, e in fams.items():
         pct = {k: "-" if e[k] is None else f"{100 * e[k]:.3g} %"
                for k in ("detected", "ok", "within_1deg", "within_5deg")}
         src = ", ".join(f"{k} {v}" for k, v in e["normal_from"].items())
         L.append(f"| {esc(name)} | {e['n']} | {pct['detected']} | {pct['ok']} | {pct['within_1deg']} "
                  f"| {pct['within_5deg']} | {fmt(e['median_ok_deg'])} (n {e['n_ok']}) "
-                 f"| {fmt(e['false_ok_per_frame'])} | {esc(src)} |")
+                 f"| {fmt(e['false_ok_per_frame'])} | {lobe_cell(e)} | {esc(src)} |")
     return L + [""]
 
 
