@@ -288,8 +288,7 @@ def _swap_by_two_renames(tmp: Path, out: Path) -> None:
     try:
         os.rename(out, old)
         os.rename(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException:  # the caller removes tmp
         if old.exists() and not out.exists():
             os.rename(old, out)
         raise
@@ -343,25 +342,12 @@ def replace_output_folder(out, fill: Callable[[Path], None], owned=None) -> Path
             _fsync_dir(tmp)
             if owned is not None:
                 check_output_folder(out, owned)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        if not out.exists():
-            try:
+            if not out.exists():
                 os.rename(tmp, out)
-            except BaseException:
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
-        else:
-            try:
-                swapped = _exchange(tmp, out)
-            except BaseException:
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
-            if swapped:
-                shutil.rmtree(tmp, ignore_errors=True)  # tmp now holds the previous set
-            else:
+            elif not _exchange(tmp, out):
                 _swap_by_two_renames(tmp, out)
+        finally:  # a failure's half-filled folder, or the previous set the exchange put in tmp
+            shutil.rmtree(tmp, ignore_errors=True)
         _fsync_dir(parent)
     finally:
         os.close(lock)
