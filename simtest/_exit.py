@@ -194,11 +194,9 @@ def signals_interrupt() -> Iterator[SignalState]:
         raise SignalInterrupt(signum)
 
     previous = {}
-    try:
+    with contextlib.suppress(ValueError, OSError):  # not the main interpreter
         for s in (signal.SIGINT, signal.SIGTERM):
             previous[s] = signal.signal(s, handler)
-    except (ValueError, OSError):  # pragma: no cover - not the main interpreter
-        pass
     try:
         yield state
     finally:

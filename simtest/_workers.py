@@ -112,10 +112,8 @@ def stop_workers(pool: ProcessPoolExecutor | None = None) -> int:
     A pool keeps its processes in the private ``_processes`` and its result pipe in
     ``_result_queue`` (CPython 3.9 to 3.13; 3.14 adds ``terminate_workers``). :mod:`simtest.dataset.generate` stops its own pool with it too.
     """
-    if pool is None:
-        procs = multiprocessing.active_children()
-    else:
-        procs = list((getattr(pool, "_processes", None) or {}).values())
+    procs = (multiprocessing.active_children() if pool is None
+             else list((getattr(pool, "_processes", None) or {}).values()))
     for p in procs:
         with contextlib.suppress(OSError, AttributeError, ValueError):
             p.terminate()

@@ -235,9 +235,8 @@ def _spool_read(path: Path, fingerprint: str, index: int) -> Sample | None:
             arrays = {k: z[f"a_{k}"] for k in meta["order"]}
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError):
         return None
-    if any(array_sha256(a) != meta["sha256"].get(k) for k, a in arrays.items()):
-        return None
-    if json_sha256(meta["record"]) != meta.get("record_sha256"):
+    if (any(array_sha256(a) != meta["sha256"].get(k) for k, a in arrays.items())
+            or json_sha256(meta["record"]) != meta.get("record_sha256")):
         return None
     return Sample(index=index, arrays=arrays, record=meta["record"])
 

@@ -226,6 +226,10 @@ def _detection_markdown(results: dict) -> str:
         return (f"| {f['name']} | {f['targets']} | {f['candidates']} | {_fmt(f['precision_candidates'])} | "
                 f"{_fmt(f['recall_candidates'])} | {f['ok']} | {_fmt(f['precision_ok'])} | "
                 f"{_fmt(f['recall_ok'])} | {_fmt(f['f1_ok'])} | {f['not_examined']} |")
+
+    def bin_row(r: dict) -> str:  # a reliability bin's cells
+        return (f"[{r['bin'][0]:.1f}, {r['bin'][1]:.1f}) | {r['n']} | {_fmt(r['mean_confidence'])} | "
+                f"{_fmt(r['fraction_true'])} |")
     if results.get("groups"):
         L += ["Pooled per sweep (its frames are named sweep@value#realisation below):", "",
               head[0].format("sweep"), head[1]]
@@ -252,18 +256,13 @@ def _detection_markdown(results: dict) -> str:
           "Reliability of each candidate's confidence (simtest.reconstruct.verify.confidence): per bin, "
           "the fraction of candidates that are a target's first match.", "",
           "| candidates | bin | n | mean confidence | fraction targets |", "|---|---|---|---|---|"]
-    for key in ("candidates", "ok"):
-        for r in results["reliability"][key]:
-            L.append(f"| {key} | [{r['bin'][0]:.1f}, {r['bin'][1]:.1f}) | {r['n']} | {_fmt(r['mean_confidence'])} | "
-                     f"{_fmt(r['fraction_true'])} |")
+    L += [f"| {key} | {bin_row(r)}" for key in ("candidates", "ok") for r in results["reliability"][key]]
     cv = results.get("confidence_cross_validated")
     if cv:
         L += ["", f"Leave one frame out (the confidence a new frame can expect, on the {cv['n']} fits "
               f"that pass the checks): ranking AUC {_fmt(cv['auc'])} (0.5: no better than chance).", "",
               "| bin | n | mean confidence | fraction targets |", "|---|---|---|---|"]
-        for r in cv["reliability"]:
-            L.append(f"| [{r['bin'][0]:.1f}, {r['bin'][1]:.1f}) | {r['n']} | {_fmt(r['mean_confidence'])} | "
-                     f"{_fmt(r['fraction_true'])} |")
+        L += [f"| {bin_row(r)}" for r in cv["reliability"]]
     L += ["", "![reliability diagram](reliability.png)", "", "## Operating point", "",
           "Precision and recall of the fits that pass the checks kept by `simtest reconstruct "
           "--min-confidence C` (read off this run's matches; this run's default C: "

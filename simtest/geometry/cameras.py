@@ -185,9 +185,7 @@ class CameraModel(ABC):
         return d
 
     def __eq__(self, other) -> bool:
-        if type(self) is not type(other):
-            return NotImplemented
-        return self.to_json_dict() == other.to_json_dict()
+        return self.to_json_dict() == other.to_json_dict() if type(self) is type(other) else NotImplemented
 
     def __hash__(self) -> int:
         return hash(repr(self.to_json_dict()))
