@@ -166,7 +166,7 @@ def _rig_value(dT, rl, n, h, rig_arr, rough, geo=None):
     return S, parts
 
 
-def _rig_grad(dT, parts, n, dns, h, rig_arr, rough):
+def _rig_grad(dT, parts, dns, h, rig_arr, rough):
     """``dS`` (4, N) of :func:`_rig_value` in (a, b, log h, log n). Per light
     ``d log val = n d cb / cb + d log f + d log p``, with the derivatives of :func:`_terms`."""
     L, w, inv_sq, m = rig_arr
@@ -196,7 +196,7 @@ def _rig_image(d, n, dns, h, rig_arr, rough, grad=True):
     dT = np.ascontiguousarray(np.asarray(d, dtype=np.float64).T)
     rl = _ray_light(rig_arr[0], dT)
     S, parts = _rig_value(dT, rl, n, h, rig_arr, rough)
-    return S, (_rig_grad(dT, parts, n, dns, h, rig_arr, rough).T if grad else None)
+    return S, (_rig_grad(dT, parts, dns, h, rig_arr, rough).T if grad else None)
 
 
 def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: LightRig, roughness: float) -> np.ndarray:

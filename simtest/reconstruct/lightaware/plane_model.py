@@ -112,13 +112,11 @@ class PlaneModel:
         """The mean of each pixel's sub-pixel samples (the last axis)."""
         return v if self.ss == 1 else v.reshape(*v.shape[:-1], -1, self.ss * self.ss).mean(axis=-1)
 
-    def resjac_at(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
+    def resjac_at(self, p, nb, e1, e2, grad=True, w=None):
         """Residuals (M,) and Jacobian (M, 4) at ``p`` = (a, b, log h, log roughness) about ``nb``."""
-        if self.general:
-            return self.resjac_general(p, nb, e1, e2, grad, w, kaufman)
-        return self.resjac_plain(p, nb, e1, e2, grad, w, kaufman)
+        return (self.resjac_general if self.general else self.resjac_plain)(p, nb, e1, e2, grad, w)
 
-    def resjac_general(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
+    def resjac_general(self, p, nb, e1, e2, grad=True, w=None):
         """Residuals and Kaufman's Jacobian with the diffuse column and censored rows; a censored row where
         the model is at or above the clip level has residual 0."""
         state, design, yn, cens = self.state, self.design, self.yn, self.cens
@@ -187,7 +185,7 @@ class PlaneModel:
         coef, active = st["coef"], st["active"]
         G = coef[0] * self.box(_rig_grad_ggx(self.dT, self.rl, st["n"], dns, st["h"], self.rig_arr, st["rough"],
                                              parts=st["parts"]) if self.ggx
-                               else _rig_grad(self.dT, st["parts"], st["n"], dns, st["h"], self.rig_arr, st["rough"]))
+                               else _rig_grad(self.dT, st["parts"], dns, st["h"], self.rig_arr, st["rough"]))
         if self.diffuse:
             G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr,
                                                           at=(st["n"], dns, *st["terms"])))
@@ -199,10 +197,9 @@ class PlaneModel:
         Ja = Ga - (Ga @ QA.T) @ QA
         return (Ja if w is None else Ja / w).T
 
-    def resjac_plain(self, p, nb, e1, e2, grad=True, w=None, kaufman=False):
+    def resjac_plain(self, p, nb, e1, e2, grad=True, w=None):
         """Residuals of the variable projection and their Jacobian in (a, b, log h, log n). ``w``: row weights (the
-        linear part solved with them; unweighted residual and Jacobian returned). ``kaufman``: the Jacobian without its
-        second-order term (for the covariance)."""
+        linear part solved with them; unweighted residual and Jacobian returned)."""
         state = self.state
         QT, yt = self.basis(w)
         key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes())
@@ -220,13 +217,14 @@ class PlaneModel:
                          rw=rw, r=rw if w is None else rw / w)
         if not grad:
             return state["r"], None
-        return state["r"], self.jac_of(state["dns"], w, kaufman)
+        return state["r"], self.jac_of(state["dns"], w, False)
 
     def jac_of(self, dns, w, kaufman):
-        """The Jacobian (M, 4) at the point of ``state``, the normal's derivatives ``dns``."""
+        """The Jacobian (M, 4) at the point of ``state``, the normal's derivatives ``dns``; ``kaufman``: without its
+        second-order term (for the covariance)."""
         st = self.state
         QT = self.basis(w)[0]
-        dS = self.box(_rig_grad(self.dT, st["parts"], st["n"], dns, st["h"], self.rig_arr, st["rough"]))
+        dS = self.box(_rig_grad(self.dT, st["parts"], dns, st["h"], self.rig_arr, st["rough"]))
         if w is not None:
             dS = dS * w
         St, aa, g = st["St"], st["aa"], st["g"]
