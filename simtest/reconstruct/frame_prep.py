@@ -216,17 +216,6 @@ def _is_gray(img: np.ndarray) -> bool:
     return bool(np.array_equal(img[..., 0], img[..., 1]) and np.array_equal(img[..., 0], img[..., 2]))
 
 
-def _colour_luma32(img: np.ndarray, grey: bool | None = None) -> np.ndarray | None:
-    """The float32 luma (H, W), read-only, of a colour 8- or 16-bit RGB frame; None for any other.
-    ``grey``: whether R = G = B, where the caller knows.
-    """
-    if grey is None:
-        if img.ndim != 3 or img.shape[2] != 3 or img.dtype.type not in (np.uint8, np.uint16):
-            return None
-        grey = _is_gray(img)
-    return colour_luma32(img, grey)
-
-
 def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float,
                           luma32: np.ndarray | None = None, detection_luma32: np.ndarray | None = None) -> np.ndarray:
     """The whole frame's luma smoothed once (float32, read-only): detection's smoothing where it smoothed
@@ -258,7 +247,7 @@ def _prepared(frame: _Frame, det, whole: bool) -> _Frame:
             det.grey if det.grey is not None and whole else bool(_is_gray(img)))
         # (detection's own where it smoothed this frame's luma: the same values)
         frame = replace(frame, luma32=None if grey else det.luma32 if (det.luma32 is not None and whole)
-                        else _colour_luma32(img, False), grey=grey)
+                        else colour_luma32(img, False), grey=grey)
     if not many and whole and frame.smooth_sigma_px > 0:
         # few ROIs, each smoothed alone: in float32 from the frame's luma where it is at hand
         if frame.luma32 is not None:
