@@ -194,19 +194,14 @@ def refine_peak_uv(values: np.ndarray, r: int, c: int) -> np.ndarray:
     ndarray of shape (2,)
         Peak (u, v), px, pixel centres at integer coordinates.
     """
-    h, w = values.shape
-    dr = dc = 0.0
-    if 0 < r < h - 1:
-        a, b, d = float(values[r - 1, c]), float(values[r, c]), float(values[r + 1, c])
-        den = a - 2 * b + d
-        if den < 0:
-            dr = min(max(0.5 * (a - d) / den, -0.5), 0.5)
-    if 0 < c < w - 1:
-        a, b, d = float(values[r, c - 1]), float(values[r, c]), float(values[r, c + 1])
-        den = a - 2 * b + d
-        if den < 0:
-            dc = min(max(0.5 * (a - d) / den, -0.5), 0.5)
-    return rc_to_uv([r + dr, c + dc])
+    off, b = [0.0, 0.0], float(values[r, c])
+    for k, (sr, sc) in enumerate(((1, 0), (0, 1))):  # rows, then columns
+        if 0 < (r, c)[k] < values.shape[k] - 1:
+            a, d = float(values[r - sr, c - sc]), float(values[r + sr, c + sc])
+            den = a - 2 * b + d
+            if den < 0:
+                off[k] = min(max(0.5 * (a - d) / den, -0.5), 0.5)
+    return rc_to_uv([r + off[0], c + off[1]])
 
 
 def peak_uv(values: np.ndarray, r: int, c: int, mask: np.ndarray | None = None) -> np.ndarray:
