@@ -78,11 +78,6 @@ def roi_columns(bp_uv: np.ndarray, half: np.ndarray, shape: tuple[int, int]) -> 
     return out
 
 
-def _box_sums(integral: np.ndarray, x, y, bw, bh) -> np.ndarray:
-    """Sums of many boxes from an integral image (``cv2.integral``)."""
-    return integral[y + bh, x + bw] - integral[y, x + bw] - integral[y + bh, x] + integral[y, x]
-
-
 def _box_minima(gray: np.ndarray, x, y, bw, bh) -> np.ndarray:
     """The minimum of ``gray`` in each box (float64): small boxes gathered at once."""
     out = np.empty(len(x), np.float64)
@@ -310,8 +305,8 @@ def examine(gray: np.ndarray, labels: np.ndarray, table: np.ndarray, rules: Rule
         bad = e_rows & ~((rules.ellipticity_min <= ell) & (ell <= 1.0 / rules.ellipticity_min))
         code[bad] = NOT_ELLIPTICAL
     if scope is not None:
-        integral = cv2.integral(scope.view(np.uint8))
-        code[_box_sums(integral, x, y, bw, bh) > 0] = BLACK_BORDER
+        integral = cv2.integral(scope.view(np.uint8))  # each box's sum from it
+        code[integral[y + bh, x + bw] - integral[y, x + bw] - integral[y + bh, x] + integral[y, x] > 0] = BLACK_BORDER
     code[(x == 0) | (y == 0) | (x + bw >= w) | (y + bh >= h)] = TOUCHES_BORDER
     code[area < rules.min_area_px] = TOO_SMALL
 

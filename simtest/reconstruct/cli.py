@@ -332,14 +332,6 @@ def load_truth_points(path: Path, camera) -> "np.ndarray":  # noqa: F821
     raise InputError(f"{path}: ground truth must be a .npz (simtest render) or a .tiff depth map (C3VD)")
 
 
-def _size_of_estimates(doc: dict) -> tuple[int, int] | None:
-    """(W, H) of the image the estimates were made from, if they record it."""
-    shape = doc.get("image_shape")
-    if isinstance(shape, list) and len(shape) >= 2 and all(isinstance(v, int) for v in shape[:2]):
-        return int(shape[1]), int(shape[0])
-    return None
-
-
 def check_view_sizes(doc: dict, estimates: Path, camera=None, intrinsics: Path | None = None,
                      truth_points=None, truth: Path | None = None) -> None:
     """Refuse a camera or a ground truth made for another image than the estimates'.
@@ -364,7 +356,9 @@ def check_view_sizes(doc: dict, estimates: Path, camera=None, intrinsics: Path |
     InputError
         Naming both files and both sizes (W x H px).
     """
-    image_wh = _size_of_estimates(doc)
+    shape = doc.get("image_shape")  # (W, H) of the image the estimates were made from, if they record it
+    recorded = isinstance(shape, list) and len(shape) >= 2 and all(isinstance(v, int) for v in shape[:2])
+    image_wh = (int(shape[1]), int(shape[0])) if recorded else None
     where = f"the image of {estimates}"
     cam_wh = None if camera is None or camera.image_size is None else tuple(int(v) for v in camera.image_size)
     if image_wh is None and cam_wh is not None:  # no recorded size: the camera's is the reference
@@ -413,7 +407,8 @@ def view_command(
             check_view_sizes(doc, estimates, camera, intrinsics, truth_points, truth)
         render_view(out, doc["specularities"], estimator=estimator, truth_points=truth_points)
     except OSError as exc:
-        if _is_write_error(exc, out):
+        name = getattr(exc, "filename", None)  # from writing out (its folder), not from reading an input
+        if name is not None and Path(os.path.abspath(name)).parent == Path(os.path.abspath(out)).parent:
             fail(f"--out: cannot write {out}: {exc.strerror or exc}", CANNOT_WRITE)
         fail(exc, BAD_INPUT)
     except (ValueError, ImportError) as exc:  # no pyvista: simtest._lazy.MissingBackend
@@ -428,9 +423,3 @@ def _is_png(path: Path) -> bool:
             return fh.read(8) == b"\x89PNG\r\n\x1a\n"
     except OSError:
         return False
-
-
-def _is_write_error(exc: OSError, out: Path) -> bool:
-    """True if ``exc`` came from writing ``out`` (its folder), not from reading an input."""
-    name = getattr(exc, "filename", None)
-    return name is not None and Path(os.path.abspath(name)).parent == Path(os.path.abspath(out)).parent

@@ -194,13 +194,6 @@ def _opening_at(img: np.ndarray, side: int, rows: np.ndarray, cols: np.ndarray) 
     return px.linear_at_points(bg, (h, w), rows, cols)
 
 
-def _white_share(peak_rgb: np.ndarray, tissue_rgb: np.ndarray, full_scale: float) -> np.ndarray:
-    """White share of peaks (P, 3) over their backgrounds (P, 3), display-encoded, in linear light."""
-    fs = np.float32(full_scale)
-    peak, tissue = (srgb_inverse(np.clip(v / fs, 0, 1)) for v in (peak_rgb, tissue_rgb))
-    return px.white_share(peak - tissue, tissue)
-
-
 def _as_srgb(values: np.ndarray, full_scale: float, response) -> np.ndarray:
     """RGB samples as an sRGB sensor would have written the same light (``response``: the frame's curve).
 
@@ -213,9 +206,12 @@ def _as_srgb(values: np.ndarray, full_scale: float, response) -> np.ndarray:
 
 
 def _bp_colour(src3, rows, cols, tissue_rgb, full_scale, response) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(chroma_peak, chroma_tissue, white_share)`` at BP pixels of channels ``src3`` (H, W, C)."""
+    """``(chroma_peak, chroma_tissue, white_share)`` at BP pixels of channels ``src3`` (H, W, C), the white share
+    of the peaks over their backgrounds ``tissue_rgb`` (P, 3) in linear light."""
     peak = _as_srgb(px.rgb_max9(src3, rows, cols), full_scale, response)
-    return px.chroma(peak), px.chroma(tissue_rgb), _white_share(peak, tissue_rgb, full_scale)
+    fs = np.float32(full_scale)
+    lin_peak, lin_tissue = (srgb_inverse(np.clip(v / fs, 0, 1)) for v in (peak, tissue_rgb))
+    return px.chroma(peak), px.chroma(tissue_rgb), px.white_share(lin_peak - lin_tissue, lin_tissue)
 
 
 def _specular_colour(chroma: np.ndarray, chroma_tissue: np.ndarray, share: np.ndarray | None = None) -> np.ndarray:
@@ -254,12 +250,6 @@ def _surely_no_panels(gray: np.ndarray, noise, rr: np.ndarray, full_scale: float
     """Whether no pixel of any region ``rr`` can be a panel pixel, proven without the frame."""
     thr2 = (PANEL_STD_REL * np.asarray(noise, np.float64)) ** 2 * (1.0 + _FLAT_SLACK)
     return px.surely_no_panels(gray, rr, _PANEL_MARGIN_PX, thr2, _FLAT_SLACK, PANEL_MIN_AREA * gray.size, full_scale)
-
-
-def _top_of(g_at: np.ndarray, bg_at: np.ndarray) -> np.ndarray:
-    """The top-hat ``max(g - bg, 0)`` (float32, NaN kept) of values read at some pixels."""
-    d = g_at - bg_at
-    return np.where((d >= 0) | np.isnan(d), d, np.float32(0.0)).astype(np.float32, copy=False)
 
 
 def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *, full_scale: float, noise: float,
@@ -328,7 +318,8 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
     # the luma's opening at the BPs: the reduced opening enlarged at those pixels only
     bg_bp = px.linear_at_points(bg_small, (h, w), rows, cols) if f > 1 else bg_small[rows, cols]
     g = _shared(_float32, gray) if not windowed else gray
-    height = _top_of(g[rows, cols].astype(np.float32, copy=False), bg_bp)
+    d = g[rows, cols].astype(np.float32, copy=False) - bg_bp  # the top-hat max(g - bg, 0) (float32, NaN kept)
+    height = np.where((d >= 0) | np.isnan(d), d, np.float32(0.0)).astype(np.float32, copy=False)
     # only the maxima some neighbour count can select (top-hat >= NEIGHBOUR_REL of its height) are read
     if len(todo):
         s = np.float32(np.fmin.reduce(NEIGHBOUR_REL * height[todo]))  # NaN: none
