@@ -219,8 +219,7 @@ def evaluate_paper_claim(paper: dict, sweep_cases: list[dict]) -> list[dict]:
 
 
 def _stat(case: dict, est: str, key: str = "median"):
-    m = case["metrics"]["estimators"].get(est) or {}
-    return m.get(key)
+    return (case["metrics"]["estimators"].get(est) or {}).get(key)
 
 
 def _diag(case: dict, key: str):
@@ -229,12 +228,8 @@ def _diag(case: dict, key: str):
 
 def _unique(cases: list[dict]) -> list[dict]:
     """One case per key (a setting shared by two sweeps counts once)."""
-    seen, out = set(), []
-    for c in cases:
-        if c["key"] not in seen:
-            seen.add(c["key"])
-            out.append(c)
-    return out
+    first: dict = {}
+    return [first.setdefault(c["key"], c) for c in cases if c["key"] not in first]
 
 
 def _rendered(results: dict, colocated: bool = True) -> list[dict]:
@@ -307,13 +302,9 @@ def _claim_bp_ray_beats_cone_axis(results):
             "co-located rendered curved cases, case medians")
 
 
-def _rho_cases(results):
-    return [c for c in _rendered(results) if _diag(c, "predicted_gap") is not None]
-
-
 def _rho_claim(results, measured, predicted, bound, unit, what):
     """Largest |measured - predicted| per curved family; the verdict on the analytic quadrics."""
-    cs = [c for c in _rho_cases(results) if measured(c) is not None
+    cs = [c for c in _rendered(results) if _diag(c, "predicted_gap") is not None and measured(c) is not None
           and predicted(c) is not None and _base_family(c) != "plane"]
     if not cs:
         return None
@@ -347,14 +338,9 @@ _EPS_SLACK = 0.03
 
 
 def _offset_curved_cases(results):
-    out = []
-    for c in _rendered(results, colocated=False):
-        e = _diag(c, "eps_over_d")
-        if (_base_family(c) not in ("plane", "") and e is not None
-                and min(abs(e - v) for v in CURVED_OFFSET_EPS) <= _EPS_SLACK
-                and _stat(c, "recommended") is not None):
-            out.append(c)
-    return out
+    return [c for c in _rendered(results, colocated=False)
+            if _base_family(c) not in ("plane", "") and (e := _diag(c, "eps_over_d")) is not None
+            and min(abs(e - v) for v in CURVED_OFFSET_EPS) <= _EPS_SLACK and _stat(c, "recommended") is not None]
 
 
 def _why_curved(c) -> str:
@@ -423,13 +409,10 @@ FLAT_RIG_EPS = (0.1, 0.3)
 def _flat_rig_cases(results):
     """The rendered plane cases under a light rig at epsilon/d :data:`FLAT_RIG_EPS` with a recommended median."""
     lo, hi = FLAT_RIG_EPS
-    out = []
-    for c in _rendered(results, colocated=False):
-        e = _diag(c, "eps_over_d")
-        if (_base_family(c) == "plane" and _RIG_QUALIFIER in c.get("family", "") and e is not None
-                and lo - _EPS_SLACK <= e <= hi + _EPS_SLACK and _stat(c, "recommended") is not None):
-            out.append(c)
-    return out
+    return [c for c in _rendered(results, colocated=False)
+            if _base_family(c) == "plane" and _RIG_QUALIFIER in c.get("family", "")
+            and (e := _diag(c, "eps_over_d")) is not None and lo - _EPS_SLACK <= e <= hi + _EPS_SLACK
+            and _stat(c, "recommended") is not None]
 
 
 def _claim_flat_rig(results):
@@ -489,12 +472,8 @@ def _claim_flat_rig_end_to_end(results):
 
 def _counted(cases: list[dict], key: str) -> list[tuple[dict, float, int]]:
     """``(case, share, n)`` for each case whose share diagnostic ``key`` has a count."""
-    out = []
-    for c in cases:
-        share, n = _diag(c, key), _diag(c, key + COUNT_SUFFIX)
-        if share is not None and n:
-            out.append((c, float(share), int(n)))
-    return out
+    return [(c, float(share), int(n)) for c in cases
+            if (share := _diag(c, key)) is not None and (n := _diag(c, key + COUNT_SUFFIX))]
 
 
 def _claim_sigma_coverage(results):
@@ -540,12 +519,9 @@ def _claim_halves_bp_ray(results):
     """Issue 39's two-guide must-hold: where the cubic patch observes depth, the recommended median
     is at most half the BP ray's.
     """
-    cs = []
-    for c in _offset_curved_cases(results):
-        rel = _diag(c, "cubic_patch_fit_depth_rel_sigma")
-        if (_RIG_QUALIFIER in c.get("family", "") and rel is not None
-                and rel <= TOL.depth_rel_sigma_max and _stat(c, "bp_ray") is not None):
-            cs.append(c)
+    cs = [c for c in _offset_curved_cases(results) if _RIG_QUALIFIER in c.get("family", "")
+          and (rel := _diag(c, "cubic_patch_fit_depth_rel_sigma")) is not None
+          and rel <= TOL.depth_rel_sigma_max and _stat(c, "bp_ray") is not None]
     if not cs:
         return None
     bad = [c for c in cs if _stat(c, "recommended") > 0.5 * _stat(c, "bp_ray")]
