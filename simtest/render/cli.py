@@ -16,7 +16,7 @@ import typer
 from PIL import Image
 from rich.console import Console
 
-from simtest._exit import BAD_INPUT, CANNOT_WRITE
+from simtest._exit import CANNOT_WRITE, fail
 from simtest._io import OutputFolderError
 from simtest._outdir import check_out_folder, write_out_folder
 from simtest.constants import MAX_SEED
@@ -34,12 +34,6 @@ __all__ = ["render_command", "simreal_command", "SIMREAL_FILES"]
 
 #: What ``simtest simreal`` writes in its output folder (and all that may be there: it is replaced as a set)
 SIMREAL_FILES = ("simreal.json", "simreal.md", "simreal.png", "frames.png", "glints.png", "fitted.toml")
-
-
-def _fail(message: str, code: int = 2) -> typer.Exit:
-    """Print ``error: message`` as one unwrapped line on stderr; return the Exit to raise."""
-    typer.echo(f"error: {' '.join(str(message).split())}", err=True)
-    return typer.Exit(code)
 
 
 def render_command(
@@ -64,28 +58,26 @@ def render_command(
     written.
     """
     if variant is not None and variant not in RENDER_VARIANTS:
-        raise _fail(f"--variant: {variant!r} is not one of {', '.join(RENDER_VARIANTS)}")
+        fail(f"--variant: {variant!r} is not one of {', '.join(RENDER_VARIANTS)}")
     check_out_folder(out, RENDER_FILES)
     try:
         spec = load_scene(scene)
     except SceneError as exc:
-        raise _fail(str(exc)) from None
+        fail(exc)
     console = Console(stderr=True, soft_wrap=True)
     try:
         with console.status(f"rendering {spec.name} ..."):
             result = render_scene(spec, seed=seed, variant=variant)
-    except RendererUnavailable as exc:
-        raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
+    except (RendererUnavailable, RenderInputError) as exc:  # bad input, or Mitsuba cannot run here
+        fail(exc)
     except HighlightTruthError as exc:
-        raise _fail(f"{spec.source or scene}: geometry: {exc}") from None
-    except RenderInputError as exc:
-        raise _fail(str(exc)) from None
+        fail(f"{spec.source or scene}: geometry: {exc}")
     try:
         paths = write_render(result, out)
     except OutputFolderError as exc:
-        raise _fail(exc, CANNOT_WRITE) from None
+        fail(exc, CANNOT_WRITE)
     except OSError as exc:
-        raise _fail(f"--out: cannot write the render to {out}: {exc.strerror or exc}", CANNOT_WRITE) from None
+        fail(f"--out: cannot write the render to {out}: {exc.strerror or exc}", CANNOT_WRITE)
     H, W = result.linear.shape
     console = Console(soft_wrap=True)  # the results on stdout; progress was on stderr
     console.print(f"{spec.name}: {W} x {H} px, {spec.render.spp} spp, seed {result.seed}, "
@@ -112,23 +104,23 @@ def _read_frames(paths: list[Path], option: str) -> tuple[list, list[str]]:
     frames, ids = [], []
     for p in paths:
         if not p.is_file():
-            raise _fail(f"{option}: {p}: no such file (give real frames with {option})")
+            fail(f"{option}: {p}: no such file (give real frames with {option})")
         if "banner" in p.name:
             try:
                 tiles = banner_tiles(p)
             except ValueError as exc:
-                raise _fail(f"{option}: {exc}") from None
+                fail(f"{option}: {exc}")
             frames += [f for _, f in tiles]
             ids += [k for k, _ in tiles]
         else:
             with quiet_stderr():  # libpng's own lines: ours names the file
                 img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
-                raise _fail(f"{option}: {p}: not a readable image")
+                fail(f"{option}: {p}: not a readable image")
             frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
             ids.append(p.name)
     if len({f.shape[0] for f in frames}) != 1:
-        raise _fail(f"{option}: the real frames must share one height")
+        fail(f"{option}: the real frames must share one height")
     return frames, ids
 
 
@@ -202,29 +194,27 @@ def simreal_command(
     here; 4: OUT cannot be written.
     """
     if scene_arg is not None and scene_opt is not None and scene_arg != scene_opt:
-        raise _fail(f"--scene: {scene_opt!r} and SCENE {scene_arg!r} disagree (give one)")
+        fail(f"--scene: {scene_opt!r} and SCENE {scene_arg!r} disagree (give one)")
     scene = scene_opt or scene_arg or "colonoscope"
     target = check_out_folder(out, SIMREAL_FILES)
     if fit:
         if real:
-            raise _fail("--real: not with --fit (the fit's held-out frames are its check)")
+            fail("--real: not with --fit (the fit's held-out frames are its check)")
         frames, ids = _read_frames(list(fit), "--fit")
     else:
         frames, ids = _read_frames(list(real or [real_banner_path()]), "--real")
     try:
         spec = load_scene(scene)
     except SceneError as exc:
-        raise _fail(str(exc)) from None
+        fail(exc)
     if fit:
         _simreal_fit(spec, frames, ids, list(fit), out, target, renders, polish,
                      spec.render.seed if seed is None else seed)
         return
     try:
         result = render_scene(spec, seed=seed)
-    except RenderInputError as exc:
-        raise _fail(str(exc)) from None
-    except RendererUnavailable as exc:
-        raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
+    except (RenderInputError, RendererUnavailable) as exc:  # bad input, or Mitsuba cannot run here
+        fail(exc)
     frame = result.frame
     paths = real or [real_banner_path()]
     tuning, held = split_indices(ids)
@@ -279,10 +269,8 @@ def _simreal_fit(spec, frames: list, ids: list[str], paths: list[Path], out: Pat
     try:
         res = fit_scene(spec, fit_frames, seed=seed, outer_evals=renders, polish_evals=polish,
                         progress=lambda s: console.print(s, markup=False, highlight=False))
-    except (ValueError, RenderInputError) as exc:
-        raise _fail(str(exc)) from None
-    except RendererUnavailable as exc:
-        raise _fail(str(exc), BAD_INPUT) from None  # Mitsuba cannot run here
+    except (ValueError, RenderInputError, RendererUnavailable) as exc:  # bad input, or Mitsuba cannot run here
+        fail(exc)
     tables = {name: {"before": sim_to_real_table(res.before, fr), "after": sim_to_real_table(res.after, fr)}
               for name, fr in (("fitted", fit_frames), ("held_out", held)) if fr}
     counts = {name: {when: sum(r["within_goal"] for r in rows) for when, rows in t.items()} for name, t in tables.items()}
