@@ -130,14 +130,10 @@ class SuiteRun:
 
 def _get_runner(case: Case, estimators: tuple, external: tuple = ()):
     key = (case.key, case.protocol, case.scene, estimators, external)
-    r = _RUNNERS.get(key)
-    if r is None:
-        r = make_runner(case, estimators, external)
-        _RUNNERS[key] = r
-        while len(_RUNNERS) > _RUNNERS_MAX:
-            _RUNNERS.popitem(last=False)
-    else:
-        _RUNNERS.move_to_end(key)
+    r = _RUNNERS.pop(key, None)  # put back last: the most recently used
+    _RUNNERS[key] = r = make_runner(case, estimators, external) if r is None else r
+    while len(_RUNNERS) > _RUNNERS_MAX:
+        _RUNNERS.popitem(last=False)
     return r
 
 
