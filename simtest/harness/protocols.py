@@ -355,13 +355,10 @@ class RenderedRunner:
         over = realisation_overrides(self.scene_setting, seedseq)
         result = render_scene(with_overrides(self.spec, over), seed=over["render.seed"])
         self.variant = getattr(result, "variant", None)
-        if self.image_kind == "linear":
-            image = getattr(result, "gray", None)
-            if image is None:
-                image = result.linear
+        if self.image_kind == "linear":  # the render's grey where it has one
+            image = np.asarray(result.linear if getattr(result, "gray", None) is None else result.gray)
         else:
-            image = result.sensor
-        image = np.asarray(image)
+            image = np.asarray(result.sensor)
         ests = reconstruct_image(image, result.K, self.settings)
         ok_bps = [(e, np.asarray(e.bp_px, float)) for e in ests if getattr(e, "bp_px", None) is not None]
         # Clipping: pixels at the sensor's full scale (0 for a linear float image).
@@ -372,16 +369,12 @@ class RenderedRunner:
         false_pos = sum(1 for _, ebp in ok_bps if all(float(np.linalg.norm(ebp - t)) > self.match_px for t in true_bps))
         # each in-frame highlight's detection: the nearest BP within match_px (from the BPs alone)
         matched = []
-        for h in result.highlights:
-            if not getattr(h, "in_frame", True):
-                continue
+        for h in (h for h in result.highlights if getattr(h, "in_frame", True)):
             bp = np.asarray(h.bp_px, float)
             # the nearest, first of equals: min scans from (None, inf) keeping what is not strictly beaten
             best, dist = min([(None, math.inf)] + [(e, float(np.linalg.norm(ebp - bp))) for e, ebp in ok_bps],
                              key=lambda p: p[1])
-            if best is not None and dist > self.match_px:
-                best = None
-            matched.append((h, best, dist))
+            matched.append((h, None if dist > self.match_px else best, dist))
         light_aware = any(e in LIGHT_AWARE_NAMES for e in self.estimators)
         if light_aware:
             rig = render_rig(result)
@@ -497,9 +490,7 @@ def fit_on_oracle_image(name: str, image, matched: list, camera, rig: LightRig) 
             # the radiance holds the diffuse shading: the model's diffuse column is in
             r = light_aware_estimates(img, b, camera, rig, quadric=False,
                                       diffuse=name == "photometric_fit_on_radiance")["photometric_fit"]
-            la = dict(getattr(b, "light_aware", None) or {})
-            la[name] = r
-            done[id(b)] = dataclasses.replace(b, light_aware=la)
+            done[id(b)] = dataclasses.replace(b, light_aware={**(getattr(b, "light_aware", None) or {}), name: r})
         out.append((h, done[id(b)] if b is not None else None, d))
     return out
 
@@ -651,9 +642,8 @@ def mesh_pose_overrides(p: MeshPose) -> dict:
         pose = colon_pose(p.colon_station, p.mesh_view_deg)
     else:
         pose = liver_orbit_pose(p.liver_azimuth_deg, p.liver_elevation_deg, p.mesh_distance_mm)
-    over = {"geometry.type": "mesh", "geometry.path": pose.path}
-    over.update({f"camera.{k}": v for k, v in pose.camera_keys().items()})
-    return over
+    return {"geometry.type": "mesh", "geometry.path": pose.path,
+            **{f"camera.{k}": v for k, v in pose.camera_keys().items()}}
 
 
 def make_runner(case, estimators, external=()):
