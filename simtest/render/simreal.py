@@ -146,9 +146,8 @@ def glint_population(frame: np.ndarray) -> tuple[dict[str, float], np.ndarray, n
     _, _, st, cen = cv2.connectedComponentsWithStats(white.view(np.uint8), connectivity=8)
     areas = st[1:, cv2.CC_STAT_AREA].astype(np.float64)
     sheen = lit & (lum >= SHEEN_LUMA[0] * scale) & (lum < SHEEN_LUMA[1] * scale)
-    stats = {"white_blobs_per_mp": len(areas) / (n_lit / 1e6),
-             "white_median_area_px": float(np.median(areas)) if len(areas) else 0.0,
-             "white_p90_area_px": float(np.percentile(areas, 90)) if len(areas) else 0.0,
+    med, p90 = _pooled_areas([areas])
+    stats = {"white_blobs_per_mp": len(areas) / (n_lit / 1e6), "white_median_area_px": med, "white_p90_area_px": p90,
              "white_largest_share": float(areas.max() / areas.sum()) if len(areas) else float("nan"),
              "sheen_fraction": float(sheen.sum() / n_lit)}
     return stats, areas, cen[1:].astype(np.float64)
@@ -201,8 +200,8 @@ def frame_stats(frame: np.ndarray, *, detector: bool = True) -> FrameStats:
         rgb, spread = np.full(3, np.nan), float("nan")
     p10, p50, p90 = (float(x) for x in np.percentile(lum[lit], [10, 50, 90]))
     glints, white_areas, _ = glint_population(f)
-    return FrameStats(candidates_per_mp=len(areas) / mp, median_area_px=float(np.median(areas)) if len(areas) else 0.0,
-                      p90_area_px=float(np.percentile(areas, 90)) if len(areas) else 0.0,
+    area_med, area_p90 = _pooled_areas([areas])
+    return FrameStats(candidates_per_mp=len(areas) / mp, median_area_px=area_med, p90_area_px=area_p90,
                       saturated_fraction=float(sat.sum() / lit.sum()), tissue_rgb=tuple(float(x) for x in rgb),
                       areas=areas, colour_spread=spread, luma_p10=p10, luma_p50=p50, luma_p90=p90,
                       detector_per_mp=_detector_count(f) / mp if detector else float("nan"), glints=glints,
@@ -216,6 +215,7 @@ POOLED = ("saturated_fraction", "candidates_per_mp", "median_area_px", "p90_area
 
 
 def _pooled_areas(areas: list[np.ndarray]) -> tuple[float, float]:
+    """Median and 90th percentile of the areas pooled over frames, px (0 and 0 without a blob)."""
     a = np.concatenate(areas) if areas else np.zeros(0)
     return (float(np.median(a)), float(np.percentile(a, 90))) if len(a) else (0.0, 0.0)
 
@@ -371,21 +371,23 @@ def split_tables(rendered: np.ndarray, real: list[np.ndarray], tuning: list[int]
     return out
 
 
+def _show(ax, image: np.ndarray, title: str, **title_kw) -> None:
+    """``image`` on ``ax`` under ``title`` (``title_kw`` to ``set_title``), without axes."""
+    ax.imshow(image)
+    ax.set_title(title, **title_kw)
+    ax.axis("off")
+
+
 def sim_to_real_figure(rendered: np.ndarray, real: list[np.ndarray], rows: list[dict]):
     """Figure: the rendered frame, six real frames, the area distributions and each statistic's ratio."""
     h = real[0].shape[0]
     sim_frame = at_height(rendered, h)
     fig = plt.figure(figsize=(12, 7.5), constrained_layout=True)
     gs = fig.add_gridspec(3, 5)
-    ax = fig.add_subplot(gs[0:2, 0:2])
-    ax.imshow(sim_frame)
-    ax.set_title(f"rendered ({rendered.shape[1]} x {rendered.shape[0]} px, shown at {h} px high)")
-    ax.axis("off")
+    _show(fig.add_subplot(gs[0:2, 0:2]), sim_frame,
+          f"rendered ({rendered.shape[1]} x {rendered.shape[0]} px, shown at {h} px high)")
     for i, f in enumerate(real[:6]):
-        a = fig.add_subplot(gs[i // 3, 2 + i % 3])
-        a.imshow(f)
-        a.set_title(f"real frame {i}", fontsize=9)
-        a.axis("off")
+        _show(fig.add_subplot(gs[i // 3, 2 + i % 3]), f, f"real frame {i}", fontsize=9)
     a = fig.add_subplot(gs[2, 0:2])
     sim_areas = frame_stats(sim_frame).areas
     real_areas = np.concatenate([frame_stats(f).areas for f in real])
@@ -423,10 +425,7 @@ def fit_figure(before: np.ndarray, after: np.ndarray, fitted: list[np.ndarray], 
     shown += [(f, f"fitted real frame {i}") for i, f in enumerate(fitted[:2])]
     shown += [(f, f"held-out real frame {i}") for i, f in enumerate(held[:2])]
     for i, (f, title) in enumerate(shown):
-        a = fig.add_subplot(gs[0, i])
-        a.imshow(f)
-        a.set_title(title, fontsize=9)
-        a.axis("off")
+        _show(fig.add_subplot(gs[0, i]), f, title, fontsize=9)
     for j, name in enumerate(("fitted", "held_out")):
         if name not in tables:
             continue
@@ -456,9 +455,7 @@ def frames_figure(rendered: np.ndarray, real: list[np.ndarray], ids: list[str], 
     shown += [(real[i], f"held-out frame\n{ids[i]}") for i in held_out[:per_part]]
     fig, axes = plt.subplots(1, len(shown), figsize=(2.9 * len(shown), 3.6), constrained_layout=True, squeeze=False)
     for a, (f, t) in zip(axes[0], shown):
-        a.imshow(f)
-        a.set_title(t, fontsize=9)
-        a.axis("off")
+        _show(a, f, t, fontsize=9)
     return fig
 
 
