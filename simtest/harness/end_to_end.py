@@ -80,12 +80,10 @@ def _lobe_errors(result, far) -> list[float]:
               else np.asarray(result.lights.positions, float))
     out = []
     for e, bp in far:
-        peak = lobe_peak(sm, valid, bp)
-        if peak is None:
+        if (peak := lobe_peak(sm, valid, bp)) is None:
             continue
         v, u = int(peak[1]), int(peak[0])
         n, p = np.asarray(result.normals[v, u], float), np.asarray(result.position[v, u], float)
         light = int(np.argmax(bisector(p[None], lights) @ n))
-        err = score(e, n, ("recommended",), light=light)["recommended"][0]
-        out.append(float(err))
+        out.append(float(score(e, n, ("recommended",), light=light)["recommended"][0]))
     return out

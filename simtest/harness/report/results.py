@@ -164,9 +164,8 @@ def build_results(run, run_id: str) -> dict:
         sc = [c for c in cases if c["sweep"] == sw.name]
         entry = {"name": sw.name, "protocol": sw.protocol, "parameter": sw.parameter, "label": sw.label,
                  "display_scale": sw.display_scale, "description": sw.description,
-                 "cases": [c["id"] for c in sc], "paper": sw.paper, "comparison": []}
-        if sw.paper:
-            entry["comparison"] = evaluate_paper_claim(sw.paper, sc)
+                 "cases": [c["id"] for c in sc], "paper": sw.paper,
+                 "comparison": evaluate_paper_claim(sw.paper, sc) if sw.paper else []}
         sweeps.append(entry)
     doc = {
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "run_id": run_id,
