@@ -87,10 +87,8 @@ def case_family(case) -> tuple[str, bool]:
         try:
             spec = load_scene(case.scene)
             family = family or str(p.get("geometry.type") or spec.geometry.type)
-            if eps is None:
-                eps = getattr(spec.light, "epsilon_mm", 0.0)
-            if rig is None:
-                rig = getattr(spec.light, "rig", "single")
+            eps = getattr(spec.light, "epsilon_mm", 0.0) if eps is None else eps
+            rig = getattr(spec.light, "rig", "single") if rig is None else rig
         except Exception:  # noqa: BLE001 - a family name is a label, never a reason to fail
             family = family or str(case.scene_name)
     # a light rig (light guides beside the lens) is never at the camera centre; its family is
