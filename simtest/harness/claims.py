@@ -610,10 +610,8 @@ def evaluate_claims(results: dict) -> list[dict]:
                         "holds": chk["holds"], "measured": f"{chk['estimator']}: {chk['ours']}",
                         "scope": f"sweep {sw['name']}, check {chk['check']} {chk['value']}"})
     for cid, (text, fn) in CLAIMS.items():
-        r = fn(results)
-        if r is None:
-            continue
-        holds, measured, scope = r
-        out.append({"id": cid, "source": "prediction", "claim": text,
-                    "holds": None if holds is None else bool(holds), "measured": measured, "scope": scope})
+        if (r := fn(results)) is not None:  # None: no case of the suite decides it
+            holds, measured, scope = r
+            out.append({"id": cid, "source": "prediction", "claim": text,
+                        "holds": None if holds is None else bool(holds), "measured": measured, "scope": scope})
     return out

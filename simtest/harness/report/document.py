@@ -245,8 +245,7 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
         Markdown (CommonMark with tables); each figure followed by one ``Takeaway:`` sentence.
     """
     notes = takeaways(results, history)
-    s = results["suite"]
-    p = results["provenance"]
+    s, p = results["suite"], results["provenance"]
     cases = {c["id"]: c for c in results["cases"]}
     # the console header's and the progress bar's count: distinct (key, realisations) settings
     # run once, whatever number of sweeps share them
