@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -92,6 +93,23 @@ def test_bad_scene_file_gives_one_readable_error(tmp_path, text, key, reason):
     msg = str(info.value)
     assert msg.startswith(f"{path}: {key}: "), msg
     assert reason in msg
+
+
+def test_an_image_given_for_a_scene_or_a_dataset_config_is_one_line(tmp_path):
+    # a PNG's bytes are not UTF-8: every config loader names the file, and the command exits 2 without a traceback
+    from typer.testing import CliRunner
+
+    from simtest.cli import app
+    from simtest.dataset.config import DatasetConfigError, load_config
+
+    png = tmp_path / "frame.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    for load, error in ((load_scene, SceneError), (load_config, DatasetConfigError)):
+        with pytest.raises(error, match=f"^{re.escape(str(png))}: not valid TOML: "):
+            load(png)
+    r = CliRunner().invoke(app, ["render", str(png), "--out", str(tmp_path / "out")])
+    assert r.exit_code == 2 and (r.exception is None or isinstance(r.exception, SystemExit)), r.output
+    assert "Traceback" not in r.output and f"{png}: not valid TOML" in " ".join(r.output.split())
 
 
 def test_missing_mesh_file_names_the_path(tmp_path):
