@@ -200,3 +200,8 @@ def test_simreal_cli(tmp_path):
     res = CliRunner().invoke(app, ["simreal", str(scene), "--out", str(tmp_path / "o"), "--real",
                                    str(tmp_path / "missing.png")])
     assert res.exit_code == 2 and res.output.count("\n") == 1 and "missing.png" in res.output
+    # a black frame has no lit field to measure: one line naming it, before anything renders
+    cv2.imwrite(str(tmp_path / "black.png"), np.zeros((64, 64, 3), np.uint8))
+    res = CliRunner().invoke(app, ["simreal", str(scene), "--out", str(tmp_path / "o"), "--real",
+                                   str(tmp_path / "black.png")])
+    assert res.exit_code == 2 and res.output.count("\n") == 1 and "black.png: no lit pixel" in res.output
