@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from simtest.geometry.cameras import PinholeCamera
-from simtest.harness.external import ExternalError, external_estimators, score_external, with_external
+from simtest.harness.external import (ExternalError, external_estimators, load_external, score_external,
+                                      with_external)
 from simtest.harness.suite import load_suite
 
 HERE = Path(__file__).resolve().parent
@@ -57,8 +58,14 @@ def test_a_malformed_answer_is_named(monkeypatch):
 @pytest.mark.parametrize("spec, why", [("nonsense", "expected package.module:function"),
                                        ("no_such_module_xyz:f", "cannot import"),
                                        ("json:no_such_function", "has no function"),
-                                       ("bp_ray=json:dumps", "is taken")])
+                                       ("bp_ray=os.path:join", "is taken"),
+                                       # the protocol's four arguments: refused before any render, not per realisation
+                                       ("json:dumps", r"dumps\(obj, \*, .*\) cannot be called as f\(frame, camera"),
+                                       ("math:hypot", None), ("os.path:join", None)])
 def test_a_bad_spec_is_refused_in_one_line(spec, why):
+    if why is None:  # four positional arguments fit (hypot(*coordinates), join(a, *p))
+        assert load_external(spec).__name__ == spec.split(":")[1]
+        return
     with pytest.raises(ExternalError, match=why):
         external_estimators([spec], taken=("bp_ray",))
 

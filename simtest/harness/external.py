@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import inspect
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -54,8 +55,8 @@ def load_external(spec: str) -> Callable:
     Raises
     ------
     ExternalError
-        If ``spec`` is not of that form, the module cannot be imported, or it has no callable of
-        that name; the message names ``spec``.
+        If ``spec`` is not of that form, the module cannot be imported, it has no callable of
+        that name, or its signature cannot take ``(frame, camera, rig, response)``; the message names ``spec``.
     """
     m = _SPEC.fullmatch(spec)
     if m is None:
@@ -68,6 +69,13 @@ def load_external(spec: str) -> Callable:
     fn = getattr(module, m["func"], None)
     if not callable(fn):
         raise ExternalError(f"--estimator {spec!r}: {m['module']} has no function {m['func']!r}")
+    try:
+        inspect.signature(fn).bind(None, None, None, None)
+    except TypeError:  # refused before any render, not once a realisation
+        raise ExternalError(f"--estimator {spec!r}: {m['func']}{inspect.signature(fn)} cannot be called as "
+                            "f(frame, camera, rig, response)") from None
+    except ValueError:  # no signature to read (some builtins): found out on the call
+        pass
     return fn
 
 
