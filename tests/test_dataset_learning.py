@@ -194,6 +194,11 @@ def test_show_writes_a_contact_sheet_with_one_row_per_sample(tmp_path):
         with Image.open(png) as im:
             sizes.append(im.size)
     assert sizes[0][0] == sizes[1][0] and sizes[1][1] > 2.5 * sizes[0][1]  # rows grow with the count
+    # a file given for the folder (an image, say) is one line, as a folder without a card is
+    (tmp_path / "frame.png").write_bytes(b"\x89PNG")
+    for root in (tmp_path / "frame.png", tmp_path):
+        res = CliRunner().invoke(app, ["dataset", "show", str(root), "--out", str(tmp_path / "s.png")])
+        assert res.exit_code == 2 and "missing: not a simtest dataset folder" in res.output, res.output
 
 
 def test_generate_then_read_a_dataset_of_fixed_size_with_the_default_torch_path(tmp_path):

@@ -472,7 +472,7 @@ def read_card(root: Path) -> dict:
     p = Path(root) / CARD_NAME
     try:
         card = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # no card, or ROOT is a file
         raise DatasetError(f"{p}: missing: not a simtest dataset folder") from None
     except (OSError, ValueError) as exc:
         raise DatasetError(f"{p}: unreadable: {exc}") from None
