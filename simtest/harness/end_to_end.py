@@ -71,13 +71,11 @@ def _lobe_errors(result, far) -> list[float]:
     """The recommended normal's error, deg, of each ok detection ``far`` from every listed highlight that sits
     on a specular lobe's peak (:func:`simtest.render.truth.lobe_peak`), against the surface normal there with
     the light whose bisector lies nearest it."""
-    spec = getattr(result, "specular", None)
-    if not far or spec is None or np.asarray(spec).ndim != 2:
+    if not far:
         return []
-    sm = smoothed_specular(spec)
+    sm = smoothed_specular(result.specular)
     valid = np.asarray(result.mask, bool) & (True if result.field_stop is None else np.asarray(result.field_stop))
-    lights = (np.asarray(result.light_pos, float)[None] if result.lights is None
-              else np.asarray(result.lights.positions, float))
+    lights = np.asarray(result.light_rig.positions, float)
     out = []
     for e, bp in far:
         if (peak := lobe_peak(sm, valid, bp)) is None:
