@@ -19,12 +19,12 @@ from rich.console import Console
 from simtest._exit import CANNOT_WRITE, fail
 from simtest._io import OutputFolderError
 from simtest._outdir import check_out_folder, write_out_folder
-from simtest.constants import LUMA_BT601, MAX_SEED
+from simtest.constants import MAX_SEED
 from simtest.render.render import RENDER_FILES, RendererUnavailable, RenderInputError, render_scene, write_render
 from simtest.render.simfit import fit_scene, split_frames
 from simtest.render.simreal import (DARK_LEVEL, FACTOR_GOAL, REAL_SPLIT, at_height, banner_tiles, fit_figure,
-                                    frames_figure, glint_population, glint_sheet, sim_to_real_figure,
-                                    sim_to_real_table, split_indices, split_tables)
+                                    frames_figure, glint_population, glint_sheet, lit_field,
+                                    sim_to_real_figure, sim_to_real_table, split_indices, split_tables)
 from simtest.reconstruct.images import quiet_stderr
 from simtest.simulate.truth import HighlightTruthError
 from simtest.resources import data_root, real_banner_path
@@ -122,7 +122,7 @@ def _read_frames(paths: list[Path], option: str) -> tuple[list, list[str]]:
     if len({f.shape[0] for f in frames}) != 1:
         fail(f"{option}: the real frames must share one height")
     for f, i in zip(frames, ids):  # simreal's statistics are of the lit field
-        if not (f.astype(np.float64) @ LUMA_BT601 > DARK_LEVEL).any():
+        if not lit_field(f)[1].any():
             fail(f"{option}: {i}: no lit pixel (luma at most {DARK_LEVEL} everywhere)")
     return frames, ids
 

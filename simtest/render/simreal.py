@@ -31,7 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 __all__ = ["DARK_LEVEL", "SATURATED_LEVEL", "WHITE_LEVEL", "FACTOR_GOAL", "RATIO_FLOOR", "STATISTICS", "POOLED",
            "WHITE_CHANNEL_LEVEL", "SHEEN_LUMA", "GLINT_STATISTICS", "ALL_STATISTICS", "REAL_SPLIT", "SPLIT_SEED",
-           "FrameStats", "glint_population", "split_indices", "split_tables", "banner_tiles",
+           "FrameStats", "lit_field", "glint_population", "split_indices", "split_tables", "banner_tiles",
            "log_ratio", "real_reference", "frame_stats", "sim_to_real_table", "sim_to_real_figure", "fit_figure",
            "frames_figure", "glint_sheet"]
 
@@ -109,6 +109,14 @@ class FrameStats:
                 **{k: float(self.glints.get(k, float("nan"))) for k in GLINT_STATISTICS}}
 
 
+def lit_field(frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """BT.601 luma (H, W) of an 8- or 16-bit RGB frame (H, W, 3), float64, and its lit field, luma above
+    :data:`DARK_LEVEL` (scaled by ``full / 255`` for a deeper frame): the pixels every statistic here counts."""
+    f = np.asarray(frame)
+    lum = f.astype(np.float64) @ LUMA_BT601
+    return lum, lum > DARK_LEVEL * (np.iinfo(f.dtype).max / 255.0)
+
+
 def glint_population(frame: np.ndarray) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
     """Issue 62's glint population of an RGB frame (8 or 16 bit), inside the lit field.
 
@@ -137,8 +145,7 @@ def glint_population(frame: np.ndarray) -> tuple[dict[str, float], np.ndarray, n
     if f.ndim != 3 or f.shape[2] != 3 or f.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"glint_population: expected an (H, W, 3) uint8 or uint16 frame, got {f.shape} {f.dtype}")
     scale = np.iinfo(f.dtype).max / 255.0
-    lum = f.astype(np.float64) @ LUMA_BT601
-    lit = lum > DARK_LEVEL * scale
+    lum, lit = lit_field(f)
     n_lit = int(lit.sum())
     if n_lit == 0:
         raise ValueError("glint_population: the frame has no lit pixel (all luma <= DARK_LEVEL)")
@@ -181,8 +188,7 @@ def frame_stats(frame: np.ndarray, *, detector: bool = True) -> FrameStats:
     f = np.asarray(frame)
     if f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8:
         raise ValueError(f"frame_stats: expected an (H, W, 3) uint8 frame, got {f.shape} {f.dtype}")
-    lum = f.astype(np.float64) @ LUMA_BT601
-    lit = lum > DARK_LEVEL
+    lum, lit = lit_field(f)
     if not lit.any():
         raise ValueError("frame_stats: the frame has no lit pixel (all luma <= DARK_LEVEL)")
     white = (lum >= WHITE_LEVEL) & lit
