@@ -245,6 +245,20 @@ def test_jpeg_compressed_flat_mucosa_keeps_each_guides_clipped_highlight_whole(t
     assert max(e for _, e in rows) <= MEDIAN_MAX_DEG, rows
 
 
+@pytest.mark.parametrize("tilt, depth, spec", [(36.0, 20.0, 4.0), (42.0, 14.0, 8.0)])
+def test_fused_lobes_whose_shoulder_reaches_the_frames_edge_get_both_guides_normals(tmp_path, tilt, depth, spec):
+    # broad lobes (shininess 200) of mucosa tilted towards the top edge: the specular points lie 43
+    # and 15 px inside it, the half-height region of the fused lobes reaches row 0, so the
+    # detector says touches_border; the joint plane fit reads the pixels the frame holds. Before,
+    # both guides' highlights got the BP ray alone (undetected here)
+    img, K, n, truth = sensor_plane(tilt, depth, 9001, spec=spec, shininess=200.0)
+    _write(tmp_path, img, K)
+    specs = _reconstruct(tmp_path)
+    rows = _score(specs, truth, n)
+    assert all(e is not None and e <= MEDIAN_MAX_DEG for _, e in rows), rows
+    assert all("touches_border" in s["detail"] for s in specs if s["status"] == "ok"), specs
+
+
 @pytest.mark.parametrize("depth", [9.0, 11.0])
 def test_near_flat_mucosa_under_jpeg_gets_each_guides_depth_from_the_pair(tmp_path, depth):
     # near tissue, sharp lobes, JPEG 85: each highlight's fit started at the nominal 20 mm alone

@@ -2,8 +2,8 @@
 
 Where the patch is near and shiny, the guides' lobes (:mod:`simtest.reconstruct.rig_pairs`)
 touch and the detector sees one bright region (``ok`` at neither specular point, ``merged``,
-``bad_fit``, ``not_elliptical`` or ``contour_cut``). The light-aware photometric fit models every
-lobe on one plane and needs no ellipse.
+``bad_fit``, ``not_elliptical``, ``contour_cut``, ``touches_border``). The light-aware photometric
+fit models every lobe on one plane: it needs no ellipse, nor the part of the region the frame cuts.
 
 Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point
 ``X_s = L' h / (-n . L')`` with ``L' = L - 2 (n . L + h) n`` (without a distance, the h that centres
@@ -36,8 +36,9 @@ from simtest.reconstruct.rig_pairs import (_model, _specular_points, guide_specu
 
 __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "split_fused_lobes"]
 
-#: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring).
-SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut")
+#: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring); one that
+#: touches the border only with a clipped top in the frame (unclipped: as likely one lobe's shoulder).
+SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut", "touches_border")
 
 
 def _bright_region(gray: np.ndarray, est) -> tuple[np.ndarray, int, int] | None:
@@ -260,6 +261,7 @@ def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
     if not _offset_rig(rig):
         return []
     return [i for i, e in enumerate(estimates) if e.status in SPLIT_STATUSES and not e.ok
+            and (e.saturated or e.status != "touches_border")
             and _along_the_rig(gray, e, camera, rig, e.status in ("merged", "cluster"))]
 
 
