@@ -117,8 +117,8 @@ class PlaneModel:
         return (self.resjac_general if self.general else self.resjac_plain)(p, nb, e1, e2, grad, w)
 
     def resjac_general(self, p, nb, e1, e2, grad=True, w=None):
-        """Residuals and Kaufman's Jacobian with the diffuse column and censored rows; a censored row where
-        the model is at or above the clip level has residual 0."""
+        """Residuals and Kaufman's Jacobian with the diffuse column and censored rows; a row where the model
+        is at or above the clip level reads it (residual 0 if censored, else the clip less its value)."""
         state, design, yn, cens = self.state, self.design, self.yn, self.cens
         dT, rl, rig_arr, box = self.dT, self.rl, self.rig_arr, self.box
         key = (p.tobytes(), nb.tobytes(), None if w is None else w.tobytes(), "general")
@@ -141,14 +141,16 @@ class PlaneModel:
                              active=active, r=r, Q=None)
                 return (r, np.zeros((len(yn), 4))) if grad else (r, None)
             target = np.where(cens, self.clipn, yn)
+            # the sensor reads min(model, clip): where the model clips, any value (noise, JPEG ringing) is the clip's
+            free = ~cens if self.lower is not None else np.zeros(len(yn), bool)
             for _ in range(3):  # the active set of the censored rows: two updates settle it
                 coef, Q = self._linear_part(active, target, w)
                 model = design @ coef
-                new_active = ~cens | (model < self.clipn)
+                new_active = free | (model < self.clipn)
                 if np.array_equal(new_active, active):
                     break
                 active, Q = new_active, None  # (Q: the basis of the active set before)
-            r = np.where(active, model - target, 0.0)
+            r = np.where(active, model - target, self.clipn - target)
             state.update(key=key, n=n, dns=dns, h=h, rough=rough, parts=parts, terms=terms, coef=coef,
                          active=active, r=r, Q=Q, w=w)
         if not grad:
