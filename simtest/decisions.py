@@ -583,6 +583,12 @@ CLIP_MARGIN = decision(
     "noise, exact without). Of 1, 2, 3: at 1 a row was lost; at 3 a bright red tissue lost 0.7 deg.",
     basis="tuned", stage=_L, chosen_on=("sensor-like-generated",),
     n="tests' sensor_plane seeds 700-729 (60 highlights) and two pinned frames")
+CLIP_NOISE_FROM_REL = decision(
+    "CLIP_NOISE_FROM_REL", 0.5, "fraction of the clip level",
+    "CLIP_MARGIN's sigma is the larger of the ROI's noise and that of its unclipped pixels above "
+    "half the clip: noise that grows with the level (shot noise; noise added after a tone curve, "
+    "which the linearisation stretches most near the top) is the top's, where the pooled noise of "
+    "a darker ROI understates it.", basis="physics", stage=_L)
 FLOOR_MARGIN = decision(
     "FLOOR_MARGIN", 3.0, "noise standard deviations above the floor",
     "Pixels within 3 sigma of the floor are left out of the fit: a Gaussian clipped there is "

@@ -16,7 +16,7 @@ import numpy as np
 from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
-from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH,
+from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, CLIP_NOISE_FROM_REL, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH,
                                PAIR_TOL_PX, SIGMA_MARGIN)
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
@@ -236,7 +236,8 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
 
 def _clip_margin(values: np.ndarray, clip):
     """How far below ``clip`` (one level, or per channel of ``values`` (H, W, 3); None: none) the fits
-    censor: ``CLIP_MARGIN`` times the noise of the ROI's unclipped pixels; 0 without noise.
+    censor: ``CLIP_MARGIN`` times the noise of the ROI's unclipped pixels, or of those above
+    ``CLIP_NOISE_FROM_REL`` of the clip where larger; 0 without noise.
     """
     if clip is None:
         return None
@@ -244,8 +245,11 @@ def _clip_margin(values: np.ndarray, clip):
     out = []
     for v, cl in zip(chans, np.ravel(clip)):
         v = np.asarray(v, np.float64)
-        d = (v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:]))[(v[:, :-2] < cl) & (v[:, 1:-1] < cl) & (v[:, 2:] < cl)]
-        out.append(CLIP_MARGIN * noise_sigma_of_differences(d) if d.size >= 3 else 0.0)
+        below = (v[:, :-2] < cl) & (v[:, 1:-1] < cl) & (v[:, 2:] < cl)
+        d = v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:])
+        top = below & (np.minimum(v[:, :-2], v[:, 2:]) >= CLIP_NOISE_FROM_REL * cl)
+        sig = [noise_sigma_of_differences(d[m]) for m in (below, top) if np.count_nonzero(m) >= 3]
+        out.append(CLIP_MARGIN * max(sig, default=0.0))
     return out if np.ndim(clip) else out[0]
 
 
