@@ -261,7 +261,8 @@ def test_fused_lobes_whose_shoulder_reaches_the_frames_edge_get_both_guides_norm
     assert all("touches_border" in s["detail"] for s in specs if s["status"] == "ok"), specs
 
 
-@pytest.mark.parametrize("tilt, depth, spec, shininess, quality", [(10.0, 30.0, 3.6, 200.0, 75), (5.0, 35.0, 4.0, 300.0, 85)])
+@pytest.mark.parametrize("tilt, depth, spec, shininess, quality",
+                         [(10.0, 30.0, 3.6, 200.0, 75), (5.0, 35.0, 4.0, 300.0, 85)])
 def test_broad_fused_lobes_under_jpeg_get_each_guides_specular_point_and_depth(tmp_path, tilt, depth, spec, shininess,
                                                                              quality):
     # JPEG's ringing leaves a clipped top's pixels at 250 to 254: read as the lobe's values they

@@ -16,8 +16,8 @@ import numpy as np
 from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
-from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, CLIP_NOISE_FROM_REL, ISOCURVE_ISOVALUES, LOBE_EDGE_REL, LOBE_ROI_MISMATCH,
-                               PAIR_TOL_PX, SIGMA_MARGIN)
+from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, CLIP_NOISE_FROM_REL, ISOCURVE_ISOVALUES, LOBE_EDGE_REL,
+                               LOBE_ROI_MISMATCH, PAIR_TOL_PX, SIGMA_MARGIN)
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi
