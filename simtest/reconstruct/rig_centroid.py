@@ -34,7 +34,7 @@ from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.verify import specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
-from simtest.reconstruct.rig_lobes import (SPLIT_STATUSES, _bright_region, _inside, fused_lobe_candidates,
+from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, splittable,
                                            guide_specular_points, split_fused_lobes)
 
 __all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
@@ -162,7 +162,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     """
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
     # the frame's luma once for the three steps, where a highlight or a split may read it
-    gray = luma(np.asarray(image)) if _offset_rig(rig) and any(e.status in SPLIT_STATUSES for e in estimates) else None
+    gray = luma(np.asarray(image)) if _offset_rig(rig) and any(map(splittable, estimates)) else None
     split = fused_lobe_candidates(gray, estimates, camera, rig) if gray is not None else []  # fitted in the workers
     if split:  # two guides' lobes are the illuminant's light: a candidate of the tissue's colour is no pair
         # (a top clipped in every channel is white whatever the colour at its BP)

@@ -34,11 +34,16 @@ from simtest.reconstruct.lightaware import LightAwareEstimate
 from simtest.reconstruct.rig_pairs import (_model, _specular_points, guide_specular_points, other_guide_curves,
                                            pair_plane)
 
-__all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "split_fused_lobes"]
+__all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "split_fused_lobes", "splittable"]
 
-#: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring); one that
-#: touches the border only with a clipped top in the frame (unclipped: as likely one lobe's shoulder).
+#: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring, :func:`splittable`).
 SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut", "touches_border")
+
+
+def splittable(est) -> bool:
+    """Whether the rule may split a candidate: its status in :data:`SPLIT_STATUSES`, touching the border only
+    with a clipped top in the frame (unclipped, the cut region is as likely one lobe's shoulder)."""
+    return est.status in SPLIT_STATUSES and (est.saturated or est.status != "touches_border")
 
 
 def _bright_region(gray: np.ndarray, est) -> tuple[np.ndarray, int, int] | None:
@@ -260,8 +265,7 @@ def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
     """
     if not _offset_rig(rig):
         return []
-    return [i for i, e in enumerate(estimates) if e.status in SPLIT_STATUSES and not e.ok
-            and (e.saturated or e.status != "touches_border")
+    return [i for i, e in enumerate(estimates) if splittable(e) and not e.ok
             and _along_the_rig(gray, e, camera, rig, e.status in ("merged", "cluster"))]
 
 
