@@ -577,10 +577,10 @@ RUN_OFF_FACTOR = decision(
     n="11 renders of 7 bundled scenes; 22 plane frames (ggx_plane seeds 40-41, sensor_plane 100-109)")
 CLIP_MARGIN = decision(
     "CLIP_MARGIN", 2.0, "noise standard deviations below the clip level",
-    "The photometric fit censors pixels within 2 sigma below the clip: nearer, the noise clips a "
-    "pixel often and its unclipped values are the low draws (mean -0.29 sigma at 1 sigma below, "
-    "-0.055 at 2), which pull the lobe down (a fused clipped plateau's depth 30 % short at 1 % "
-    "noise, exact without). Of 1, 2, 3: at 1 a row was lost; at 3 a bright red tissue lost 0.7 deg.",
+    "Pixels within 2 sigma below the clip are censored (the curved patches leave them out): nearer, "
+    "noise clips a pixel often and its unclipped values are the low draws (mean -0.29 sigma at 1 "
+    "sigma below, -0.055 at 2), pulling the lobe down (a fused clipped plateau's depth 30 % short at 1 "
+    "% noise, exact without). Of 1, 2, 3: at 1 a row was lost; at 3 a bright red tissue lost 0.7 deg.",
     basis="tuned", stage=_L, chosen_on=("sensor-like-generated",),
     n="tests' sensor_plane seeds 700-729 (60 highlights) and two pinned frames")
 CLIP_NOISE_FROM_REL = decision(

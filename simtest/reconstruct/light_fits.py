@@ -116,11 +116,9 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     start_n = None
     pts, ts = _isocurve_isophotes(gray, big, est.bp_px, refine=len(rig.lights) == 1)  # (isocurve_fit: one light)
     if pts:
-        iso_est = _guarded("isocurve_fit", isocurve_fit, pts, ts, est.bp_px, camera, rig,
-                           nominal_depth_mm=nominal_depth_mm)
-        out["isocurve_fit"] = iso_est
-        if iso_est.has_normal:
-            start_n = iso_est.normal
+        out["isocurve_fit"] = iso = _guarded("isocurve_fit", isocurve_fit, pts, ts, est.bp_px, camera, rig,
+                                             nominal_depth_mm=nominal_depth_mm)
+        start_n = iso.normal if iso.has_normal else None
     colour = colour_fit_applies(img, response) if colour is None else colour
     lobe = ("auto" if colour else "phong") if lobe is None else lobe
     pkw = dict(nominal_depth_mm=nominal_depth_mm, start_normal=start_n, supersample=supersample, diffuse=diffuse,
@@ -195,10 +193,9 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
         fit_values = np.stack([response.linear(sub[..., c], c, fs) for c in range(3)], axis=-1)
         fit_clip = [float(response.linear(fs, c, fs)) for c in range(3)]
     margin = _clip_margin(fit_values, fit_clip)
-    if colour or margin is None:  # (the projections measure the body colours on what the clip left)
-        pkw = dict(pkw, clip_level=fit_clip, clip_margin=margin)
-    else:
-        pkw = dict(pkw, clip_level=fit_clip - margin)
+    # (the projections measure the body colours on what the clip left)
+    pkw = (dict(pkw, clip_level=fit_clip, clip_margin=margin) if colour or margin is None
+           else dict(pkw, clip_level=fit_clip - margin))
     if response is not None and not colour and img.ndim == 3:
         # one channel of a sensor frame (a JPEG grid): the albedo's dark lines are left out
         y = luma(img[big.slices])
@@ -295,14 +292,17 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     if status == "plane_misfit" and not quadric:
         # the plane as rule 4 reads it
         misfit_sigma = min(90.0, _bp_ray_error_beside(est, released(out["photometric_fit"])) / SIGMA_MARGIN)
+    fits = {}
     if quadric or (quadric is None and status in QUADRIC_AFTER):
-        out["quadric_fit"] = _guarded(
-            "quadric_fit", quadric_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
-            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=misfit_sigma)
+        fits["quadric_fit"] = (quadric_fit, misfit_sigma)
     if cubic or (cubic is None and status in CURVED_FIT_AFTER and rig.has_separate_lights):  # two lobes apart
-        out["cubic_patch_fit"] = _guarded(
-            "cubic_patch_fit", cubic_patch_fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
-            clip_level=saturation_level, nominal_depth_mm=nominal_depth_mm, misfit_sigma=bool(cubic))
+        fits["cubic_patch_fit"] = (cubic_patch_fit, bool(cubic))
+    # the plane fit's clip: values within the noise's margin of it are clipped pixels read low
+    margin = _clip_margin(gray[near.slices], saturation_level) if fits else None
+    clip = saturation_level if margin is None else saturation_level - margin
+    for name, (fit, sigma) in fits.items():
+        out[name] = _guarded(name, fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
+                             clip_level=clip, nominal_depth_mm=nominal_depth_mm, misfit_sigma=sigma)
     for name, r in out.items():
         out[name] = released(r)
 
