@@ -8,6 +8,7 @@ tissue colour, sRGB, clipping, 8 bits, 1 % noise), and the endoscope suite's
 
 from __future__ import annotations
 
+import io
 import json
 
 import cv2
@@ -20,6 +21,7 @@ from typer.testing import CliRunner
 
 from simtest.cli import app
 from simtest.geometry.cameras import PinholeCamera
+from simtest.reconstruct.detect_pixels import frame_ceiling
 from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, pair_plane, pair_starts
 from simtest.simulate.offset import specular_point
 
@@ -554,3 +556,36 @@ def test_colonoscope_plane_end_to_end_gets_light_aware_normals_for_both_guides(t
     errs = [e for _, e in rows if e is not None]
     assert len(rows) == 2 and len(errs) >= SHARE_MIN * len(rows), rows
     assert np.median(errs) <= MEDIAN_MAX_DEG, rows
+
+
+def _pillow_jpeg(img, quality):
+    """``img`` (RGB) encoded and decoded by Pillow's libjpeg at ``quality`` (4:2:0)."""
+    buf = io.BytesIO()
+    Image.fromarray(img).save(buf, "JPEG", quality=quality)
+    return np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"))
+
+
+def test_the_ceiling_of_a_jpeg_is_where_its_flat_clipped_tops_decode():
+    # Pillow at quality 50 quantises a flat white block's DC so that it decodes to 254: the clipped
+    # top of fused broad lobes sits at 254 with a few pixels at 255, the frame's ceiling is 254.
+    # The lossless frame, the same frame at quality 80 (its top decodes to 255) and a frame with no
+    # clipped top keep the dtype's 255.
+    img, _, _, _ = sensor_plane(20.0, 10.0, 9015, spec=6.0, shininess=200.0)
+    jpeg = _pillow_jpeg(img, 50)
+    darkest = jpeg.min(axis=2)
+    assert frame_ceiling(jpeg) == 254.0
+    assert np.count_nonzero(darkest == 254) > 10 * np.count_nonzero(darkest == 255)  # what makes it so
+    assert frame_ceiling(img) == 255.0
+    assert frame_ceiling(_pillow_jpeg(img, 80)) == 255.0
+    dim, _, _, _ = sensor_plane(20.0, 10.0, 9015, spec=0.0)
+    assert frame_ceiling(_pillow_jpeg(dim, 50)) == 255.0
+
+
+def test_a_jpeg_whose_clipped_top_decodes_below_255_keeps_both_guides(tmp_path):
+    # The same frame through simtest reconstruct: counted at 255, its 1491-px clipped top held 8
+    # pixels and the top-hat took the rest for background, so neither guide's highlight was
+    # detected; at the frame's ceiling both get their light-aware normal (0.036, 0.032 deg)
+    img, K, n, truth = sensor_plane(20.0, 10.0, 9015, spec=6.0, shininess=200.0)
+    _write(tmp_path, _pillow_jpeg(img, 50), K)
+    rows = _score(_reconstruct(tmp_path), truth, n)
+    assert all(e is not None and e <= MEDIAN_MAX_DEG for _, e in rows), rows

@@ -29,7 +29,7 @@ from simtest.reconstruct.candidates import MERGED, NOT_ELLIPTICAL, STATUS_NAMES,
 # the detection's pixel work, re-exported
 from simtest.reconstruct.detect_pixels import (  # noqa: F401
     BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, _gray_and_grey, _scope_border, _threshold_mask, auto_smooth_sigma_px,
-    background_side_px, clipped_mask, colour_luma32, luma_cv2, connected_components, connected_components_with_stats,
+    background_side_px, clipped_mask, colour_luma32, luma_cv2, connected_components, connected_components_with_stats, frame_ceiling,
     image_noise_sigma, image_smooth_sigma_px, linear_at, local_peak_mask, luma, mask_labels, near_ceiling_mask,
     noise_sigma, smooth_sigma_for_noise
 )
@@ -329,7 +329,7 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
     if not (np.isfinite(fs) and fs > 0):
         raise ValueError(f"full_scale must be finite and positive, got {full_scale!r}")
     if saturation_level is None and img.dtype.kind == "u":
-        saturation_level = float(np.iinfo(img.dtype).max)
+        saturation_level = frame_ceiling(img)
 
     if method not in DETECT_METHODS:
         raise ValueError(f"method: {method!r} is not one of {DETECT_METHODS}")

@@ -9,7 +9,8 @@ import numpy as np
 
 from simtest.constants import LUMA_BT601
 from simtest.decisions import (BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, CLIP_LUMA_MARGIN_REL, CLIP_MARGIN_REL,
-                               NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES, TOPHAT_MIN_REL)
+                               CODEC_CEILING_SPIKE, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES, TOPHAT_MIN_REL)
+from simtest.reconstruct.jpeg import MCU_PX, jpeg_grid
 
 _LUMA = np.array(LUMA_BT601)
 #: The luma weights as OpenCV's ``cv2.transform`` matrix (one output channel from R, G, B).
@@ -374,6 +375,40 @@ def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
     if not 0.01 <= area / dark.size <= 0.6:
         return None
     return (dark == 2).view(np.uint8)
+
+
+def frame_ceiling(image: np.ndarray) -> float:
+    """The level an integer frame's clipped tops read: its dtype's maximum, or where the frame carries
+    a JPEG grid, the level the tops' flat blocks decode to when it lies below (:data:`~simtest.decisions.
+    CODEC_CEILING_SPIKE`: that level's count of pixels, darkest channel, is a spike within
+    :data:`~simtest.decisions.CLIP_MARGIN_REL` of the maximum, above the maximum's count, and at
+    least :data:`~simtest.reconstruct.jpeg.MCU_PX`).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, C), unsigned integer
+
+    Returns
+    -------
+    float
+        The ceiling, image units.
+
+    References
+    ----------
+    ISO/IEC 10918-1 (JPEG), F.2.1: a block's DC coefficient is quantised to a multiple of its step.
+    """
+    top = int(np.iinfo(image.dtype).max)
+    if image.dtype != np.uint8 or image.ndim == 3 and image.shape[2] != 3:  # (JPEG: 8-bit grey or RGB)
+        return float(top)
+    darkest = image if image.ndim == 2 else cv2.min(cv2.min(image[..., 0], image[..., 1]), image[..., 2])
+    lo = top - int(CLIP_MARGIN_REL * top)
+    counts = cv2.calcHist([darkest], [0], None, [top - lo + 1], [lo, top + 1]).ravel()
+    level = int(np.argmax(counts))
+    spike = counts[level]
+    if (lo + level == top or spike < MCU_PX or spike <= counts[-1]
+            or spike < CODEC_CEILING_SPIKE * float(np.median(counts))):
+        return float(top)
+    return float(lo + level) if jpeg_grid(image) is not None else float(top)
 
 
 def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,

@@ -13,8 +13,8 @@ import numpy as np
 from simtest.constants import gaussian_radius_px
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh
-from simtest.reconstruct.detect import (colour_luma32, luma_cv2, default_full_scale, image_noise_sigma, luma,
-                                        smooth_sigma_for_noise, validate_image)
+from simtest.reconstruct.detect import (colour_luma32, luma_cv2, default_full_scale, frame_ceiling, image_noise_sigma,
+                                        luma, smooth_sigma_for_noise, validate_image)
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.settings import ReconSettings
 
@@ -89,7 +89,7 @@ class _Frame:
         fs = default_full_scale(img) if settings.full_scale is None else settings.full_scale
         sat = settings.saturation_level
         if sat is None and img.dtype.kind == "u":
-            sat = float(np.iinfo(img.dtype).max)
+            sat = frame_ceiling(img)
         sigma, noise = settings.smooth_sigma_px, None
         if sigma is None:  # chosen from the noise of the region looked at
             region = img if noise_roi is None else img[noise_roi.slices]

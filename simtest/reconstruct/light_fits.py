@@ -22,7 +22,7 @@ from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import luma, noise_sigma
-from simtest.reconstruct.detect_pixels import noise_sigma_of_differences
+from simtest.reconstruct.detect_pixels import frame_ceiling, noise_sigma_of_differences
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.jpeg import jpeg_grid
 from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit, isocurve_fit, photometric_fit,
@@ -317,9 +317,17 @@ def colour_fit_applies(image, response) -> bool:
     return img.dtype != np.uint8 or jpeg_grid(img) is None
 
 def fit_arguments(image, kwargs: dict) -> dict:
-    """``kwargs`` with the frame's linear image and :func:`colour_fit_applies`' decision, once a frame."""
-    if kwargs.get("response") is not None and "linear" not in kwargs:
-        kwargs = dict(kwargs, linear=kwargs["response"].linearize(np.asarray(image)))
+    """``kwargs`` with, once a frame, the clip a codec left the tops at (:func:`frame_ceiling`), the
+    frame's linear image (that clip made linear) and :func:`colour_fit_applies`' decision."""
+    img, response = np.asarray(image), kwargs.get("response")
+    if response is not None and "linear" not in kwargs:
+        gray, clip, ch = response.linearize(img)
+        fs, top = response.full_scale(img), frame_ceiling(img) if img.dtype.kind == "u" else np.inf
+        if top < fs:
+            clip = float(np.ravel(response.linear(np.full(1, top), ch, fs))[0])
+        kwargs = dict(kwargs, linear=(gray, clip, ch))
+    elif response is None and kwargs.get("saturation_level") is None and img.dtype.kind == "u":
+        kwargs = dict(kwargs, saturation_level=frame_ceiling(img))
     return kwargs if "colour" in kwargs else dict(kwargs, colour=colour_fit_applies(image, kwargs.get("response")))
 
 

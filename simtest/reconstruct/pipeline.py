@@ -250,7 +250,7 @@ def reconstruct(image, K, isovalues: float | Sequence[float] | None = None, *, d
     frame = frame if response is None else dataclasses.replace(frame, response=response)
     sub = img[r.slices]
     det = detect_specularities(sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
-                               saturation_level=settings.saturation_level, min_area_px=settings.min_area_px,
+                               saturation_level=frame.saturation_level, min_area_px=settings.min_area_px,
                                smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
                                peak_rel=settings.peak_rel, max_candidates=settings.max_candidates)
     whole = sub.shape == img.shape
