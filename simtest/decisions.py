@@ -293,13 +293,13 @@ CLIP_LUMA_MARGIN_REL = decision(
     n="24 encodes of 8 tests/test_rig_pairs.sensor_plane frames")
 CODEC_CEILING_SPIKE = decision(
     "CODEC_CEILING_SPIKE", 5.0, "times the median count of the levels within CLIP_MARGIN_REL",
-    "On a frame with a JPEG grid the clipped tops sit at the level their flat blocks' quantised DC "
+    "On a frame with a JPEG grid the clipped tops sit at the levels their flat blocks' quantised DC "
     "decodes to, which may lie below the ceiling (libjpeg at quality 50: 254, with 0.1 % of the top "
-    "at 255). That level is the ceiling where its count of pixels (darkest channel) is a spike: at "
-    "least this many times the median count of the levels in the margin, above the ceiling's own "
-    "count, and one 16 x 16 MCU or more. Tops below 255 gave 10.0 to 27 (a 480 px frame's 2,300 px "
-    "top, qualities 15 to 70, the rim's levels count more beside a small top) and 23 to 97 (1280 px "
-    "frames, quality 50); the banner's levels, with no top, 1.8: 5 lies between.",
+    "at 255; at 90 a top split between 254 and 255). The ceiling is the lowest level whose count of "
+    "pixels (darkest channel) is a spike: at least this many times the median count of the levels "
+    "in the margin, and one 16 x 16 MCU or more. Tops' levels gave 10.0 to 27 on a 480 px frame "
+    "(qualities 15 to 95; the rim's levels count more beside a small top) and 23 to 97 on 1280 px "
+    "frames (quality 50); the banner's levels, with no top, 1.8: 5 lies between.",
     basis="tuned", stage=_D, chosen_on=("sensor-like-generated", "banner-labelled"),
     n="libjpeg encodes of 9 two-guide plane frames (sensor_plane seed 9015; 8 outside) and the banner")
 BACKGROUND_PLATEAU_FACTOR = decision(

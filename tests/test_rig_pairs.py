@@ -566,10 +566,10 @@ def _pillow_jpeg(img, quality):
 
 
 def test_the_ceiling_of_a_jpeg_is_where_its_flat_clipped_tops_decode():
-    # Pillow at quality 50 quantises a flat white block's DC so that it decodes to 254: the clipped
-    # top of fused broad lobes sits at 254 with a few pixels at 255, the frame's ceiling is 254.
-    # The lossless frame, the same frame at quality 80 (its top decodes to 255) and a frame with no
-    # clipped top keep the dtype's 255.
+    # libjpeg at quality 50 quantises a flat white block's DC so that it decodes to 254: the
+    # clipped top of fused broad lobes sits at 254 with a few pixels at 255, the frame's ceiling is
+    # 254. At quality 90 a larger frame's top is split between 254 and 255: the lower. The lossless
+    # frame, the frame at quality 80 (its top at 255) and a frame with no clipped top keep 255.
     img, _, _, _ = sensor_plane(20.0, 10.0, 9015, spec=6.0, shininess=200.0)
     jpeg = _pillow_jpeg(img, 50)
     darkest = jpeg.min(axis=2)
@@ -579,13 +579,19 @@ def test_the_ceiling_of_a_jpeg_is_where_its_flat_clipped_tops_decode():
     assert frame_ceiling(_pillow_jpeg(img, 80)) == 255.0
     dim, _, _, _ = sensor_plane(20.0, 10.0, 9015, spec=0.0)
     assert frame_ceiling(_pillow_jpeg(dim, 50)) == 255.0
+    big, _, _, _ = sensor_plane(20.0, 10.0, 9015, spec=6.0, shininess=200.0, size=480, f=240.0)
+    split = _pillow_jpeg(big, 90).min(axis=2)
+    assert min(np.count_nonzero(split == 254), np.count_nonzero(split == 255)) > 2000  # both hold the top
+    assert frame_ceiling(_pillow_jpeg(big, 90)) == 254.0
 
 
-def test_a_jpeg_whose_clipped_top_decodes_below_255_keeps_both_guides(tmp_path):
-    # The same frame through simtest reconstruct: counted at 255, its 1491-px clipped top held 8
-    # pixels and the top-hat took the rest for background, so neither guide's highlight was
-    # detected; at the frame's ceiling both get their light-aware normal (0.036, 0.032 deg)
-    img, K, n, truth = sensor_plane(20.0, 10.0, 9015, spec=6.0, shininess=200.0)
-    _write(tmp_path, _pillow_jpeg(img, 50), K)
+@pytest.mark.parametrize("size, f, quality", [(320, 160.0, 50), (480, 240.0, 90)])
+def test_a_jpeg_whose_clipped_top_decodes_below_255_keeps_both_guides(tmp_path, size, f, quality):
+    # The same frames through simtest reconstruct. Counted at 255, the quality-50 top held 8 pixels
+    # and the top-hat took the rest for background: neither guide's highlight was detected (0.036,
+    # 0.032 deg now). The quality-90 top's 2,371 pixels at 254 were fitted as the lobe's values, a
+    # plateau no lobe makes: both fits misfit (residual RMS 0.2) and kept the BP ray (0.005 deg now).
+    img, K, n, truth = sensor_plane(20.0, 10.0, 9015, spec=6.0, shininess=200.0, size=size, f=f)
+    _write(tmp_path, _pillow_jpeg(img, quality), K)
     rows = _score(_reconstruct(tmp_path), truth, n)
     assert all(e is not None and e <= MEDIAN_MAX_DEG for _, e in rows), rows

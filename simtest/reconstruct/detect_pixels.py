@@ -379,10 +379,10 @@ def _dark_corner_components(dark: np.ndarray) -> np.ndarray | None:
 
 def frame_ceiling(image: np.ndarray) -> float:
     """The level an integer frame's clipped tops read: its dtype's maximum, or where the frame carries
-    a JPEG grid, the level the tops' flat blocks decode to when it lies below (:data:`~simtest.decisions.
-    CODEC_CEILING_SPIKE`: that level's count of pixels, darkest channel, is a spike within
-    :data:`~simtest.decisions.CLIP_MARGIN_REL` of the maximum, above the maximum's count, and at
-    least :data:`~simtest.reconstruct.jpeg.MCU_PX`).
+    a JPEG grid, the lowest level the tops' flat blocks decode to when it lies below: the lowest level
+    within :data:`~simtest.decisions.CLIP_MARGIN_REL` of the maximum whose count of pixels (darkest
+    channel) is a spike (:data:`~simtest.decisions.CODEC_CEILING_SPIKE`) of at least
+    :data:`~simtest.reconstruct.jpeg.MCU_PX`.
 
     Parameters
     ----------
@@ -403,12 +403,10 @@ def frame_ceiling(image: np.ndarray) -> float:
     darkest = image if image.ndim == 2 else cv2.min(cv2.min(image[..., 0], image[..., 1]), image[..., 2])
     lo = top - int(CLIP_MARGIN_REL * top)
     counts = cv2.calcHist([darkest], [0], None, [top - lo + 1], [lo, top + 1]).ravel()
-    level = int(np.argmax(counts))
-    spike = counts[level]
-    if (lo + level == top or spike < MCU_PX or spike <= counts[-1]
-            or spike < CODEC_CEILING_SPIKE * float(np.median(counts))):
+    spikes = np.flatnonzero((counts >= CODEC_CEILING_SPIKE * float(np.median(counts))) & (counts >= MCU_PX))
+    if not len(spikes) or lo + spikes[0] == top or jpeg_grid(image) is None:
         return float(top)
-    return float(lo + level) if jpeg_grid(image) is not None else float(top)
+    return float(lo + spikes[0])
 
 
 def near_ceiling_mask(image: np.ndarray, saturation_level: float | None,
