@@ -29,9 +29,9 @@ from simtest.reconstruct.candidates import MERGED, NOT_ELLIPTICAL, STATUS_NAMES,
 # the detection's pixel work, re-exported
 from simtest.reconstruct.detect_pixels import (  # noqa: F401
     BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, _gray_and_grey, _scope_border, _threshold_mask, auto_smooth_sigma_px,
-    background_side_px, clipped_mask, colour_luma32, luma_cv2, connected_components, connected_components_with_stats, frame_ceiling,
-    image_noise_sigma, image_smooth_sigma_px, linear_at, local_peak_mask, luma, mask_labels, near_ceiling_mask,
-    noise_sigma, smooth_sigma_for_noise
+    background_side_px, clipped_mask, colour_luma32, luma_cv2, connected_components, connected_components_with_stats,
+    frame_ceiling, image_noise_sigma, image_smooth_sigma_px, linear_at, local_peak_mask, luma, mask_labels,
+    near_ceiling_mask, noise_sigma, smooth_sigma_for_noise
 )
 
 _SUPPORTED = (np.uint8, np.uint16, np.float16, np.float32, np.float64)

@@ -26,8 +26,8 @@ from simtest.decisions import (JPEG_MIN_COEFFICIENTS as MIN_COEFFICIENTS, JPEG_P
                                JPEG_UNIMODAL_SHARE as UNIMODAL_SHARE, JPEG_MIN_QUANTISED as MIN_QUANTISED,
                                JPEG_BLOCKINESS_CLEAR as BLOCKINESS_CLEAR)
 
-__all__ = ["BLOCK", "MCU_PX", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN", "CHANCE_SD", "MIN_STEP",
-           "MIN_QUANTISED", "UNIMODAL_SHARE", "dct_blocks", "jpeg_grid", "quantisation_sigma"]
+__all__ = ["BLOCK", "MCU_PX", "GRID_BLOCKS", "BLOCKINESS_CLEAR", "MIN_COEFFICIENTS", "PERIODICITY_MIN", "CHANCE_SD",
+           "MIN_STEP", "MIN_QUANTISED", "UNIMODAL_SHARE", "dct_blocks", "jpeg_grid", "quantisation_sigma"]
 
 #: Side of a JPEG block, px.
 BLOCK = 8
