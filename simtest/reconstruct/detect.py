@@ -288,8 +288,8 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
     full_scale : float, optional
         Intensity of a white pixel; default :func:`default_full_scale`.
     saturation_level : float, optional
-        A pixel is clipped when every channel is >= this; default the integer dtype maximum, and
-        no clipping for float images.
+        A pixel is clipped when every channel is >= this; default :func:`frame_ceiling` (an integer
+        frame's maximum, or the level a JPEG's clipped tops decode to), no clipping for float images.
     min_area_px : int, optional
         Smaller components are rejected as ``too_small``.
     ellipticity_min : float, optional

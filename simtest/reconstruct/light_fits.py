@@ -69,7 +69,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     nominal_depth_mm : float
         Depth assumed for the fits' start, mm.
     saturation_level : float, optional
-        Clip level (default: the dtype's maximum for integer images; none for float images).
+        Clip level (default: an integer dtype's maximum, none for floats; with_light_aware: frame_ceiling's).
     roi_scale, quadric_roi_scale : float
         Growth of the highlight's ROI for the photometric fit, and for the curved-patch fits.
     supersample : int

@@ -127,8 +127,8 @@ class ReconSettings:
         Intensity of a white pixel; default the dtype maximum (uint) or ``max(1, image.max())``
         (float). Finite and positive.
     saturation_level : float, optional
-        A pixel is clipped when every channel is >= this; default the integer dtype maximum, none
-        for float images. Finite and positive.
+        A pixel is clipped when every channel is >= this; default the frame's ceiling (its dtype's
+        maximum, or where a JPEG's clipped tops decode: ``frame_ceiling``); none for float images; finite, positive.
     brightness_rel : float
         Detection: a pixel is bright when its luma is >= ``brightness_rel * full_scale``; in (0, 1).
     min_area_px : int
