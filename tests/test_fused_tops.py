@@ -20,11 +20,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
+from test_rig_pairs import (  # the match radius, the must-hold's bound
+    MATCH_PX,
+    MEDIAN_MAX_DEG,
+    _reconstruct,
+)
 
 from simtest.geometry.lights import Light, LightRig
 from simtest.geometry.response import srgb_encode
-from simtest.reconstruct.rig_lobes import _on_the_tops, _tops_depth, guide_specular_points
-from test_rig_pairs import MATCH_PX, MEDIAN_MAX_DEG, _reconstruct  # the match radius, the must-hold's bound
+from simtest.reconstruct.rig_lobes import (
+    _on_the_tops,
+    _tops_depth,
+    guide_specular_points,
+)
+
 SIZE, FOCAL = 360, 170.0
 
 
@@ -297,3 +306,65 @@ def test_a_split_replaces_an_ok_row_that_has_only_the_bp_ray():
     assert len(rows) == 2, [(r.bp_px, r.status, r.detail[:40]) for r in rows]
     for row, p in zip(sorted(rows, key=lambda r: r.bp_px[0]), truth[np.argsort(truth[:, 0])]):
         assert np.linalg.norm(row.bp_px - p) < 1e-6 and row.recommended.normal_from == "photometric_fit"
+
+
+def _clipped_and_unclipped_lobes():
+    """One guide's clipped lobe (Gaussian, sigma 10 px, 4 times the clip level) and the other's
+    unclipped one (0.55 of the clip level, as a guide farther from a tilted patch gives), at the
+    specular points of a plane (tilt 15 deg, 25 mm), joined above half the clipped one's height:
+    ``(image, K, rig, normal, h, specular points (2, 2))``."""
+    img, K, rig, N, h, truth = _two_clipped_tops()
+    v, u = np.mgrid[0:img.shape[0], 0:img.shape[1]].astype(float)
+    lobe = [np.exp(-((u - p[0]) ** 2 + (v - p[1]) ** 2) / 392.0) for p in truth]  # sigma 14 px
+    return np.clip(0.3 + 4.0 * lobe[0] + 0.55 * lobe[1], 0, 1), K, rig, N, h, truth
+
+
+def test_an_unclipped_lobe_fused_to_a_clipped_one_gets_its_row():
+    # a tilted patch lights its two guides' lobes unequally: the weaker one stays below the clip
+    # (here its peak at 0.86 of it) on the shoulder of the clipped one, so its specular point lies
+    # 20 px off the clipped top. The joint fit that places both is split into both rows (before,
+    # a point off the tops refused the split: the weaker guide's highlight had no row)
+    from simtest.reconstruct.lightaware import LightAwareEstimate
+    from simtest.reconstruct.rig_lobes import split_fused_lobes
+
+    img, K, rig, N, h, truth = _clipped_and_unclipped_lobes()
+    assert img[tuple(np.rint(truth[1, ::-1]).astype(int))] < 0.9  # the second lobe is not clipped
+    lo, hi = np.floor(truth.min(axis=0)).astype(int) - 40, np.ceil(truth.max(axis=0)).astype(int) + 40
+    fit = LightAwareEstimate("photometric_fit", "ok", "", N, depth_mm=h, normal_sigma_deg=0.1, distance_mm=h)
+    rows = split_fused_lobes(img, [_candidate(K, truth[0], (lo[1], hi[1], lo[0], hi[0]), "ok", fit)], K, rig)
+    assert len(rows) == 2, [r.detail for r in rows]
+    for row, p in zip(rows, truth):
+        assert np.linalg.norm(row.bp_px - p) < 1e-6 and row.recommended.normal_from == "photometric_fit"
+
+
+def test_a_joint_fit_with_no_point_on_the_clipped_top_is_not_split():
+    # a small clipped lobe (sigma 6 px) and a faint one on a broad sheen that joins them above half
+    # the BP's height; a fit whose plane (the true one turned by 4 deg about the image's horizontal)
+    # puts both guides' points 22 px up, inside the bright region but off the clipped top, fitted
+    # something else: the candidate keeps its one row
+    from simtest.geometry.angles import unit
+    from simtest.reconstruct._pixels import uv_to_rc
+    from simtest.reconstruct.lightaware import LightAwareEstimate
+    from simtest.reconstruct.rig_lobes import (
+        _bright_region,
+        _inside,
+        _tops,
+        split_fused_lobes,
+    )
+
+    _, K, rig, N, h, truth = _two_clipped_tops()
+    v, u = np.mgrid[0:240, 0:240].astype(float)
+    d2 = [(u - p[0]) ** 2 + (v - p[1]) ** 2 for p in (*truth, truth.mean(axis=0))]
+    img = np.clip(0.3 + 4.0 * np.exp(-d2[0] / 72.0) + 0.08 * np.exp(-d2[1] / 72.0) + 0.65 * np.exp(-d2[2] / 5000.0), 0, 1)
+    c, s_ = np.cos(np.radians(4.0)), np.sin(np.radians(4.0))
+    turned = unit(np.array([[1.0, 0.0, 0.0], [0.0, c, -s_], [0.0, s_, c]]) @ N)
+    fit = LightAwareEstimate("photometric_fit", "ok", "", turned, depth_mm=h, normal_sigma_deg=0.1, distance_mm=h)
+    lo, hi = np.floor(truth.min(axis=0)).astype(int) - 40, np.ceil(truth.max(axis=0)).astype(int) + 40
+    est = _candidate(K, truth[0], (lo[1], hi[1], lo[0], hi[0]), "ok", fit)
+    pts = guide_specular_points(K, rig, turned, h)
+    region = _bright_region(img, est)
+    tops = np.argwhere(_tops(img, region)) + region[1:]
+    gap = [np.linalg.norm(tops - uv_to_rc(p), axis=1).min() for p in pts]
+    assert _inside(region, pts).all() and min(gap) > 2.0, (pts - truth, gap)  # the case: in the region, off the top
+    rows = split_fused_lobes(img, [est], K, rig)
+    assert len(rows) == 1 and rows[0] is est, [(r.bp_px, r.detail) for r in rows]
