@@ -412,7 +412,7 @@ def _tilted_across_the_guides(seed: int):
 
 
 def test_a_plane_tilted_across_the_guides_gives_both_their_rows(tmp_path):
-    # end to end: the weaker guide's lobe is a shoulder of the clipped one (its luma 250 to 252,
+    # end to end: the weaker guide's lobe is a shoulder of the clipped one (its luma 246 to 249,
     # no peak of its own), the joint fit of the clipped candidate places both specular points;
     # before, the shoulder's point lay 2.8 px off the clipped top and only the clipped guide had
     # a row (the other's nearest candidate, too_small, 47 px away)
