@@ -5,14 +5,13 @@ touch and the detector sees one bright region (``ok`` at neither specular point,
 ``bad_fit``, ``not_elliptical``, ``contour_cut``, ``touches_border``). The light-aware photometric
 fit models every lobe on one plane: it needs no ellipse, nor the part of the region the frame cuts.
 
-Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point
-``X_s = L' h / (-n . L')`` with ``L' = L - 2 (n . L + h) n`` (without a distance, the h that centres
-them on the clipped tops, :func:`_on_the_tops`). When two or more guides' points lie in the
-candidate's bright region (above :data:`FUSED_LOBE_LEVEL` of the BP's height, holding the BP),
-at least :data:`~simtest.decisions.PAIR_TOL_PX` apart and none another candidate's BP (on a
-clipped candidate, one at least within ``PAIR_TOL_PX`` of its clipped top: a weaker guide's lobe
-need not clip), the candidate gives one row per guide: BP at its specular point, status ``ok``,
-the joint fit's normal. A rejected candidate is fitted for this only where the rig's curve runs in its region.
+Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point ``X_s = L' h / (-n . L')`` with
+``L' = L - 2 (n . L + h) n`` (without a distance, the h that centres them on the clipped tops, :func:`_on_the_tops`).
+When two or more guides' points lie in the candidate's bright region (above :data:`FUSED_LOBE_LEVEL` of the BP's
+height, holding the BP), at least :data:`~simtest.decisions.PAIR_TOL_PX` apart, none another candidate's BP and, if
+clipped, one within ``PAIR_TOL_PX`` of its top (a weaker lobe may not clip), it gives one row per guide: BP at its
+specular point, status ``ok``, the joint fit's normal. A rejected candidate is fitted for this only where the rig's
+curve runs in its region.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops where
 the rig pairs them gives one row per top at its centroid, with the plane the two fix as a stereo
@@ -159,8 +158,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
     if len(others) and (np.linalg.norm(others[:, None] - p[None], axis=-1) < PAIR_TOL_PX).any():
         return None  # a guide's highlight that is an ok candidate of its own already has its row
     if est.saturated:
-        # a plane that puts no point within PAIR_TOL_PX of the region's tops fitted something else (a
-        # weaker guide's lobe fused to a clipped one may be unclipped: its point lies off the tops)
+        # no point within PAIR_TOL_PX of the tops: it fitted something else (a weaker lobe may not clip)
         off = cv2.distanceTransform(np.pad((~_tops(gray, region)).astype(np.uint8), 1, constant_values=1),
                                     cv2.DIST_L2, 5)[1:-1, 1:-1]
         rc = np.rint(uv_to_rc(p)).astype(np.int64) - (region[1], region[2])
