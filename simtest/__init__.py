@@ -12,6 +12,9 @@ in millimetres; angles in degrees at interfaces and radians inside.
 
 from __future__ import annotations
 
+from simtest._blas import pin_openblas_kernels
 from simtest._version import __version__
+
+pin_openblas_kernels()  # before numpy or scipy loads OpenBLAS: the same kernels on every x86-64 CPU
 
 __all__ = ["__version__"]

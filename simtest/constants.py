@@ -1,14 +1,14 @@
 """Constants of simtest that more than one room uses, each with its reason, in one place.
 
 Tolerances are in :mod:`simtest.tolerances`; this module holds the rest: the seed range, the grey
-conversions, the thread settings of worker processes, and the geometry of OpenCV's Gaussian
+conversions, the thread settings of worker processes, the BLAS kernels, and the geometry of OpenCV's Gaussian
 smoothing that the regions smoothed apart from their image rely on.
 """
 
 from __future__ import annotations
 
-__all__ = ["LUMA_BT601", "LUMINANCE_BT709", "MAX_SEED", "SINGLE_THREAD_ENV", "SMOOTH_BLOCK_BYTES",
-           "gaussian_radius_px", "smooth_block_px"]
+__all__ = ["LUMA_BT601", "LUMINANCE_BT709", "MAX_SEED", "OPENBLAS_CORE", "OPENBLAS_CORE_NEEDS", "SINGLE_THREAD_ENV",
+           "SMOOTH_BLOCK_BYTES", "gaussian_radius_px", "smooth_block_px"]
 
 #: Largest seed of a render (``render.seed`` in scene files) and of a dataset sample's render:
 #: Mitsuba's samplers take 32-bit signed seeds (a larger one fails inside ``sample_tea_32``).
@@ -30,6 +30,15 @@ LUMINANCE_BT709 = (0.2126, 0.7152, 0.0722)
 #: benchmarks): parallelism comes from the processes, and one thread per process keeps timings
 #: and results independent of the machine's core count. Effective for libraries not yet loaded.
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+#: OpenBLAS's kernels on every x86-64 CPU that runs them (:mod:`simtest._blas`). Its AVX-512 ones (picked
+#: on recent Intel Xeons) round some sums by where arrays lie in memory: a fit near its budget converged in
+#: some runs of one command and not in others. Haswell's gave one result in 8 of 8 memory layouts, and on a
+#: Xeon repeated the AMD EPYC (Zen kernels) held-out rendered report in every figure (2026-11-28).
+OPENBLAS_CORE = "Haswell"
+
+#: CPU flags (``/proc/cpuinfo``) the :data:`OPENBLAS_CORE` kernels need: AVX2 and FMA3.
+OPENBLAS_CORE_NEEDS = frozenset({"avx2", "fma"})
 
 #: Bytes of the column blocks of OpenCV's smoothing of a float image. OpenCV computes a row in SIMD
 #: blocks from its first column and the last few columns in scalar code, and the two may round a

@@ -44,21 +44,10 @@ class Tolerances:
         largest entry. Central differences with a step h have truncation error ~h^2 (relative
         ~1e-8 at the steps used) and rounding error ~eps |f| / h (~1e-10 relative); the inverse
         maps' Newton stop (1e-9 px) divided by the step adds at most ~1e-6 relative.
-    isophote_noise_px : float
-        A decision of the light-aware fits, :data:`simtest.decisions.ISOPHOTE_NOISE_PX` (its unit, reason
-        and provenance there).
-    photometric_noise_rel : float
-        A decision of the light-aware fits, :data:`simtest.decisions.PHOTOMETRIC_NOISE_REL` (its unit, reason
-        and provenance there).
-    plane_misfit_rho : float
-        A decision of the light-aware fits, :data:`simtest.decisions.PLANE_MISFIT_RHO` (its unit, reason
-        and provenance there).
-    plane_misfit_rel : float
-        A decision of the light-aware fits, :data:`simtest.decisions.PLANE_MISFIT_REL` (its unit, reason
-        and provenance there).
-    patch_misfit_rms_rel : float
-        A decision of the light-aware fits, :data:`simtest.decisions.PATCH_MISFIT_RMS_REL` (its unit, reason
-        and provenance there).
+    isophote_noise_px, photometric_noise_rel, plane_misfit_rho, plane_misfit_rel, patch_misfit_rms_rel, depth_rel_sigma_max : float
+        Decisions of the light-aware fits: :data:`simtest.decisions.ISOPHOTE_NOISE_PX`, ``PHOTOMETRIC_NOISE_REL``,
+        ``PLANE_MISFIT_RHO``, ``PLANE_MISFIT_REL``, ``PATCH_MISFIT_RMS_REL`` and ``DEPTH_OBSERVABLE_REL_SIGMA``
+        (unit, reason and provenance there).
     exact_image_normal_deg : float
         Normal error allowed to a light-aware fit of an exact float image (no noise): 0.01 deg.
         What remains is the contour's spline interpolation (isophote points refined to ~1e-4 px)
@@ -66,9 +55,6 @@ class Tolerances:
         worst conditioned cases (60 mm, 50 deg tilt, epsilon/d = 0.05).
     exact_image_depth_rel : float
         Relative depth error allowed in the same setting: 1e-3 (0.1 %; measured below 2e-6).
-    depth_rel_sigma_max : float
-        A decision of the light-aware fits, :data:`simtest.decisions.DEPTH_OBSERVABLE_REL_SIGMA` (its unit, reason
-        and provenance there).
     claim_bp_ray_colocated_deg : float
         Largest per-case median error of the BP ray on co-located renders for the report's claim
         "the BP ray is exact" to hold: the truth is exact by construction, so what remains is BP

@@ -7,9 +7,11 @@ import os
 import sys
 from pathlib import Path
 
-import matplotlib
-import numpy as np
-import pytest
+import simtest  # noqa: F401 - first: it asks OpenBLAS for one set of kernels before numpy loads it (simtest._blas)
+
+import matplotlib  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 matplotlib.use("Agg")
 

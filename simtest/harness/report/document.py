@@ -266,7 +266,8 @@ def markdown_report(results: dict, figures: list[str], nightly: dict | None = No
           f"several sweeps runs once), {n_real} realisations",
           f"- git commit `{p['git_commit']}`{dirty}; Mitsuba variant(s): "
           f"{', '.join(p['mitsuba_variants']) or 'none (no render)'}",
-          f"- machine: {p['machine']['platform']}, {p['machine']['cpu_count']} CPUs; "
+          f"- machine: {p['machine']['platform']}, {p['machine']['cpu_count']} CPUs"
+          f"{'; BLAS ' + ', '.join(p['machine']['blas']) if p['machine'].get('blas') else ''}; "
           f"{p['workers']} worker(s), wall time {p['wall_time_s']:.1f} s",
           "- speed: " + "; ".join(f"{k}: {v['realisations']} realisations, {fmt(v['per_s'])} realisations/s"
                                   for k, v in p["realisations_per_s"].items()),

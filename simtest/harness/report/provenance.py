@@ -13,12 +13,20 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
+from threadpoolctl import threadpool_info
+
 from simtest.resources import data_root
 
-__all__ = ["provenance", "open_parameters", "make_run_id", "relative_to_repo"]
+__all__ = ["blas_kernels", "provenance", "open_parameters", "make_run_id", "relative_to_repo"]
 
 #: The repository root in a clone (where git runs and paths are made relative).
 _ROOT = data_root()
+
+
+def blas_kernels() -> list[str]:
+    """Each loaded BLAS as ``"openblas 0.3.30 Haswell"`` (threadpoolctl's view; :mod:`simtest._blas`)."""
+    return sorted({f"{i.get('internal_api')} {i.get('version')} {i.get('architecture')}"
+                   for i in threadpool_info() if i.get("user_api") == "blas"})
 
 
 def _git(*args) -> str | None:
@@ -52,7 +60,8 @@ def provenance(run) -> dict:
     -------
     dict
         JSON-ready: ``git_commit``, ``git_dirty`` and ``git_dirty_files`` (None outside a git
-        checkout), ``packages`` (version or None), ``mitsuba_variants``, ``python``, ``machine``,
+        checkout), ``packages`` (version or None), ``mitsuba_variants``, ``python``, ``machine`` (with
+        ``blas``, the kernels of each loaded BLAS),
         ``workers``, ``started_utc``, ``wall_time_s`` (seconds) and ``realisations_per_s`` per
         protocol (realisations per CPU-second x workers).
     """
@@ -73,7 +82,9 @@ def provenance(run) -> dict:
             ln.split(None, 1)[1] for ln in dirty.splitlines() if len(ln.split(None, 1)) == 2),
         "packages": _versions(), "mitsuba_variants": run.variants, "python": platform.python_version(),
         "machine": {"node": platform.node(), "platform": platform.platform(),
-                    "processor": platform.processor() or platform.machine(), "cpu_count": os.cpu_count()},
+                    "processor": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
+                    # two machines repeat each other's figures bit for bit only on the same BLAS kernels
+                    "blas": blas_kernels()},
         "workers": run.workers, "started_utc": run.started_utc, "wall_time_s": round(run.wall_s, 3),
         "realisations_per_s": rates,
     }

@@ -1,0 +1,35 @@
+"""One set of OpenBLAS kernels on every x86-64 CPU that runs them, so that a run repeats bit for bit.
+
+Effective where OpenBLAS (numpy's and scipy's copies) has not loaded yet: the command line, ``import
+simtest`` before numpy, and the processes they start. Why: :data:`simtest.constants.OPENBLAS_CORE`.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from pathlib import Path
+
+from simtest.constants import OPENBLAS_CORE, OPENBLAS_CORE_NEEDS
+
+__all__ = ["pin_openblas_kernels"]
+
+
+def _cpu_flags() -> set[str]:
+    """The first CPU's flags in ``/proc/cpuinfo`` (empty where there is none)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text(encoding="ascii", errors="replace")
+    except OSError:
+        return set()
+    return next((set(ln.split(":", 1)[1].split()) for ln in text.splitlines() if ln.startswith("flags")), set())
+
+
+def pin_openblas_kernels() -> str | None:
+    """Set ``OPENBLAS_CORETYPE`` to :data:`~simtest.constants.OPENBLAS_CORE` where it is unset and the CPU
+    is x86-64 with :data:`~simtest.constants.OPENBLAS_CORE_NEEDS`; return the core type now asked for
+    (the user's own where set), or None."""
+    if "OPENBLAS_CORETYPE" not in os.environ and platform.machine().lower() in ("x86_64", "amd64") \
+            and OPENBLAS_CORE_NEEDS <= _cpu_flags():
+        os.environ["OPENBLAS_CORETYPE"] = OPENBLAS_CORE
+    return os.environ.get("OPENBLAS_CORETYPE")
+
