@@ -492,9 +492,9 @@ FUSED_LOBE_LEVEL = decision(
     basis="physics", stage=_L)
 FUSED_TOPS_STRETCH = decision(
     "FUSED_TOPS_STRETCH", 1.5, "length along the rig's curve over width across it",
-    "Clipped tops this much longer along the rig's curve than wide hold two guides' lobes: one "
-    "top is 2 r each way, two tops s apart are s + 2 r long, longer by half from s = r, where "
-    "they begin to fuse.", basis="physics", stage=_L)
+    "Clipped tops this much longer along the rig's curve than wide hold two guides' lobes: one top is 2 r each "
+    "way, two tops s apart are s + 2 r long, longer by half from s = r, where they begin to fuse. Two guides "
+    "only: three or more make a polygon of tops, as wide as long.", basis="physics", stage=_L)
 
 # --- JPEG noise model (verification) -----------------------------------------------------------------
 

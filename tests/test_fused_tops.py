@@ -370,23 +370,23 @@ def test_a_joint_fit_with_no_point_on_the_clipped_top_is_not_split():
     assert len(rows) == 1 and rows[0] is est, [(r.bp_px, r.detail) for r in rows]
 
 
-def _tilted_across_the_guides(seed: int):
-    """A frame (960 x 720, f 520 px) of a plane 26.4 mm away tilted 28 deg across the guides'
-    baseline (azimuth 188 deg): normalised Blinn-Phong lobes (exponent 253, specular albedo
-    0.065) and Lambertian tissue under two guides 4 mm either side (cos profile, inverse square),
-    exposed so that the shading's median is 0.35, shot-like noise of 1 %, sRGB, 8 bits. The
-    nearer guide's lobe clips, the other's peaks just below the ceiling on its shoulder:
-    ``(frame, camera file, normal, true highlights (2, 2))``."""
+def _plane_under_guides(seed: int, guides, dist_mm: float, tilt_deg: float, azimuth_deg: float, exponent: float,
+                        ks: float):
+    """A frame (960 x 720, f 520 px) of a plane ``dist_mm`` away along the optical axis, tilted
+    ``tilt_deg`` towards ``azimuth_deg``: normalised Blinn-Phong lobes (``exponent``, specular albedo
+    ``ks``) and Lambertian tissue under the guides (J, 3) mm (cos profile, inverse square), exposed
+    so that the shading's median is 0.35, shot-like noise of 1 %, sRGB, 8 bits: ``(frame, camera
+    file, normal, true highlights (J, 2))``. A sensor model of our own, not simtest's renderer."""
     W, H, f = 960, 720, 520.0
     K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1.0]])
-    t, a = np.radians(28.18), np.radians(188.24)
+    t, a = np.radians(tilt_deg), np.radians(azimuth_deg)
     n = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])
-    h = 26.39 * np.cos(t)  # the plane n . X = -h
+    h = dist_mm * np.cos(t)  # the plane n . X = -h
     vv, uu = np.mgrid[0:H, 0:W].astype(float)
     d = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu)], -1)
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     X = d * (-h / (d @ n))[..., None]
-    guides = np.array([[-4.0, 0.0, 0.0], [4.0, 0.0, 0.0]])
+    guides = np.asarray(guides, float)
     diffuse, spec, truth = np.zeros((H, W)), np.zeros((H, W)), []
     for L in guides:
         Ld = L - X
@@ -396,11 +396,11 @@ def _tilted_across_the_guides(seed: int):
         half = Ld - d
         half /= np.linalg.norm(half, axis=-1, keepdims=True)
         diffuse += E * np.maximum(Ld @ n, 0.0)
-        spec += E * np.maximum(half @ n, 0.0) ** 253.1
+        spec += E * np.maximum(half @ n, 0.0) ** exponent
         Lm = L - 2 * (n @ L + h) * n
         Xs = Lm * (h / -(n @ Lm))
         truth.append((K @ Xs)[:2] / Xs[2])
-    lin = (diffuse[..., None] * np.array([0.75, 0.42, 0.36]) + 0.065 * spec[..., None] * (253.1 + 8) / 8)
+    lin = (diffuse[..., None] * np.array([0.75, 0.42, 0.36]) + ks * spec[..., None] * (exponent + 8) / 8)
     lin *= 0.35 / np.median(diffuse)
     lin += 0.01 * np.random.default_rng(seed).standard_normal(lin.shape) * np.sqrt(np.clip(lin, 0, None) + 0.01)
     img = np.rint(srgb_encode(np.clip(lin, 0, 1)) * 255).astype(np.uint8)
@@ -409,6 +409,13 @@ def _tilted_across_the_guides(seed: int):
            "lights": [{"position_mm": L.tolist(), "intensity": 1.0, "falloff": "inverse_square",
                        "profile_exponent": 1.0} for L in guides]}
     return img, cam, n, np.array(truth)
+
+
+def _tilted_across_the_guides(seed: int):
+    """A plane 26.4 mm away tilted 28 deg across two guides' baseline (4 mm either side of the lens,
+    azimuth 188 deg; exponent 253, specular albedo 0.065): the nearer guide's lobe clips, the other's
+    peaks just below the ceiling on its shoulder (:func:`_plane_under_guides`)."""
+    return _plane_under_guides(seed, [[-4.0, 0.0, 0.0], [4.0, 0.0, 0.0]], 26.39, 28.18, 188.24, 253.1, 0.065)
 
 
 def test_a_plane_tilted_across_the_guides_gives_both_their_rows(tmp_path):
@@ -420,3 +427,24 @@ def test_a_plane_tilted_across_the_guides_gives_both_their_rows(tmp_path):
     for uv, d, s in _nearest_rows(_reconstructed(tmp_path, img, cam), truth):
         assert d <= MATCH_PX, (uv, d, s["status"])
         assert s["normal_from"] == "photometric_fit" and _error_deg(s, n) <= MEDIAN_MAX_DEG, (s["status"], s["normal_from"])
+
+
+#: Three guides about the lens (4 mm off it, a triangle as on some colonoscopes).
+_THREE_GUIDES = [[3.24, 0.55, 0.0], [-2.77, 2.66, 0.0], [-1.27, -3.14, 0.0]]
+
+
+@pytest.mark.parametrize("seed, geometry, was", [
+    # two of the three lobes clip and fuse: one candidate, "merged: 2 saturated plateaus"
+    (9020, (22.64, 20.71, 253.02, 420.2, 0.062), "merged"),
+    # unclipped lobes whose isophotes at t = 0.7 enclose one another's BPs: each "merged"
+    (9021, (18.43, 10.45, 199.92, 319.4, 0.0631), "merged"),
+])
+def test_three_guides_lobes_fused_into_one_give_every_guide_its_row(tmp_path, seed, geometry, was):
+    # the tops of three lobes make a triangle, not a line: a test of stretch along the rig's curve,
+    # which tells two guides' fused lobes from one lobe, refused them (no fit, every row the BP ray)
+    img, cam, n, truth = _plane_under_guides(seed, _THREE_GUIDES, *geometry)
+    specs = _reconstructed(tmp_path, img, cam)
+    for uv, d, s in _nearest_rows(specs, truth):
+        assert d <= MATCH_PX, (uv, d, s["status"])
+        assert s["normal_from"] == "photometric_fit" and _error_deg(s, n) <= MEDIAN_MAX_DEG, (s["status"], s["detail"])
+        assert f"of 3 fused into one highlight ({was}" in s["detail"], s["detail"]

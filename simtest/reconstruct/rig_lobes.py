@@ -260,13 +260,13 @@ def _pair_rows(est, camera, rig, region, pair, others: np.ndarray, split: list |
 
 def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
     """The indexes of the rejected candidates in :data:`SPLIT_STATUSES` whose region reaches along the
-    rig's curve (``gray``: the frame's luma), to be fitted with the plane only and split; empty
-    without a rig off the camera centre.
-    """
+    rig's curve (``gray``: the frame's luma), to be fitted with the plane only and split; empty without a
+    rig off the camera centre. Under two guides, a ``merged`` or ``cluster`` one's tops stretched along it."""
     if not _offset_rig(rig):
         return []
+    two = len(rig.positions) == 2  # three or more guides' tops make a polygon, not a line
     return [i for i, e in enumerate(estimates) if splittable(e) and not e.ok
-            and _along_the_rig(gray, e, camera, rig, e.status in ("merged", "cluster"))]
+            and _along_the_rig(gray, e, camera, rig, two and e.status in ("merged", "cluster"))]
 
 
 def _one_split_per_pair(parts: list, splits: list) -> None:
