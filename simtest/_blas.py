@@ -1,8 +1,6 @@
-"""One set of OpenBLAS kernels on every x86-64 CPU that runs them, so that a run repeats bit for bit.
-
-Effective where OpenBLAS (numpy's and scipy's copies) has not loaded yet: the command line, ``import
-simtest`` before numpy, and the processes they start. Why: :data:`simtest.constants.OPENBLAS_CORE`.
-"""
+"""One set of OpenBLAS kernels on every x86-64 CPU that runs them, so that a run repeats bit for bit (why:
+:data:`simtest.constants.OPENBLAS_CORE`). Effective where OpenBLAS (numpy's and scipy's copies) has not loaded
+yet: the command line, ``import simtest`` before numpy, and the processes they start."""
 
 from __future__ import annotations
 
@@ -26,10 +24,14 @@ def _cpu_flags() -> set[str]:
 
 def pin_openblas_kernels() -> str | None:
     """Set ``OPENBLAS_CORETYPE`` to :data:`~simtest.constants.OPENBLAS_CORE` where it is unset and the CPU
-    is x86-64 with :data:`~simtest.constants.OPENBLAS_CORE_NEEDS`; return the core type now asked for
-    (the user's own where set), or None."""
+    is x86-64 with :data:`~simtest.constants.OPENBLAS_CORE_NEEDS` (read from ``/proc/cpuinfo``).
+
+    Returns
+    -------
+    str or None
+        The core type now asked for (the user's own where set), or None where none is.
+    """
     if "OPENBLAS_CORETYPE" not in os.environ and platform.machine().lower() in ("x86_64", "amd64") \
             and OPENBLAS_CORE_NEEDS <= _cpu_flags():
         os.environ["OPENBLAS_CORETYPE"] = OPENBLAS_CORE
     return os.environ.get("OPENBLAS_CORETYPE")
-

@@ -31,10 +31,9 @@ LUMINANCE_BT709 = (0.2126, 0.7152, 0.0722)
 #: and results independent of the machine's core count. Effective for libraries not yet loaded.
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
-#: OpenBLAS's kernels on every x86-64 CPU that runs them (:mod:`simtest._blas`). Its AVX-512 ones (picked
-#: on recent Intel Xeons) round some sums by where arrays lie in memory: a fit near its budget converged in
-#: some runs of one command and not in others. Haswell's gave one result in 8 of 8 memory layouts, and on a
-#: Xeon repeated the AMD EPYC (Zen kernels) held-out rendered report in every figure (2026-11-28).
+#: OpenBLAS's kernels on every x86-64 CPU that runs them (:mod:`simtest._blas`): its AVX-512 ones (recent Xeons)
+#: round sums by where arrays lie in memory, so a fit near its budget converged in some runs and not others. Haswell's
+#: gave one result in 8 of 8 memory layouts and, on a Xeon, four held-out reports of an AMD EPYC's exactly (2026-11-28).
 OPENBLAS_CORE = "Haswell"
 
 #: CPU flags (``/proc/cpuinfo``) the :data:`OPENBLAS_CORE` kernels need: AVX2 and FMA3.

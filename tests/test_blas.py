@@ -11,13 +11,13 @@ import pytest
 
 from simtest._blas import _cpu_flags, pin_openblas_kernels
 from simtest.constants import OPENBLAS_CORE, OPENBLAS_CORE_NEEDS
-from simtest.harness.report.provenance import blas_kernels
+from simtest.harness.report.provenance import _blas_kernels as blas_kernels
 
 _CAN_PIN = OPENBLAS_CORE_NEEDS <= _cpu_flags()
 
 
 def _kernels_in_a_fresh_process(env: dict) -> list[str]:
-    code = ("import simtest, numpy, scipy.linalg, json; from simtest.harness.report.provenance import blas_kernels; "
+    code = ("import simtest, numpy, scipy.linalg, json; from simtest.harness.report.provenance import _blas_kernels as blas_kernels; "
             "print(json.dumps(blas_kernels()))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])

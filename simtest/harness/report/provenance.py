@@ -17,13 +17,13 @@ from threadpoolctl import threadpool_info
 
 from simtest.resources import data_root
 
-__all__ = ["blas_kernels", "provenance", "open_parameters", "make_run_id", "relative_to_repo"]
+__all__ = ["provenance", "open_parameters", "make_run_id", "relative_to_repo"]
 
 #: The repository root in a clone (where git runs and paths are made relative).
 _ROOT = data_root()
 
 
-def blas_kernels() -> list[str]:
+def _blas_kernels() -> list[str]:
     """Each loaded BLAS as ``"openblas 0.3.30 Haswell"`` (threadpoolctl's view; :mod:`simtest._blas`)."""
     return sorted({f"{i.get('internal_api')} {i.get('version')} {i.get('architecture')}"
                    for i in threadpool_info() if i.get("user_api") == "blas"})
@@ -60,10 +60,9 @@ def provenance(run) -> dict:
     -------
     dict
         JSON-ready: ``git_commit``, ``git_dirty`` and ``git_dirty_files`` (None outside a git
-        checkout), ``packages`` (version or None), ``mitsuba_variants``, ``python``, ``machine`` (with
-        ``blas``, the kernels of each loaded BLAS),
-        ``workers``, ``started_utc``, ``wall_time_s`` (seconds) and ``realisations_per_s`` per
-        protocol (realisations per CPU-second x workers).
+        checkout), ``packages`` (version or None), ``mitsuba_variants``, ``python``, ``machine`` (with ``blas``,
+        each loaded BLAS's kernels), ``workers``, ``started_utc``, ``wall_time_s`` (seconds) and
+        ``realisations_per_s`` per protocol (realisations per CPU-second x workers).
     """
     # reports/ holds outputs (earlier reports, the baseline), not code: a run that rewrites them is
     # still a run of the committed code.
@@ -84,7 +83,7 @@ def provenance(run) -> dict:
         "machine": {"node": platform.node(), "platform": platform.platform(),
                     "processor": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
                     # two machines repeat each other's figures bit for bit only on the same BLAS kernels
-                    "blas": blas_kernels()},
+                    "blas": _blas_kernels()},
         "workers": run.workers, "started_utc": run.started_utc, "wall_time_s": round(run.wall_s, 3),
         "realisations_per_s": rates,
     }
