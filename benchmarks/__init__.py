@@ -25,6 +25,8 @@ a dict, see :mod:`simtest.bench`) in a module here and one line in :data:`SECTIO
 imported only when it runs.
 """
 
+import simtest  # noqa: F401 - first: the sections' fresh interpreters get the BLAS kernels a user's command gets
+
 #: Section name -> ``"module:function"``, in the order ``simtest bench`` runs them.
 SECTIONS: dict[str, str] = {
     "reconstruct": "benchmarks.reconstruct:bench_reconstruct",
