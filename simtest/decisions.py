@@ -307,6 +307,20 @@ BACKGROUND_PLATEAU_FACTOR = decision(
     "The background square is at least twice the widest clipped plateau, so that the opening "
     "never fits inside a saturated highlight and takes it for background.",
     basis="physics", stage=_D)
+BROAD_LOBE_SCALE = decision(
+    "BROAD_LOBE_SCALE", 3, "times the background square",
+    "Rough tissue seen close makes lobes wider than the background square: a Blinn-Phong lobe of "
+    "exponent m spans 2 f tan(acos(q^(1/m))) at the candidates' level (0.6 of the peak in sRGB, "
+    "q = 0.3 in linear light), 114 px for m = 200 (Phong n = 50, the paper's default) at f = 520 px, "
+    "against a 72 px square on a 960 x 720 frame. Such a lobe is searched again with a square 3 times "
+    "wider, which holds it at twice its width (the plateau factor's rule); rougher lobes stay cut.", basis="physics", stage=_D)
+BROAD_ISOPHOTE_REL = decision(
+    "BROAD_ISOPHOTE_REL", 0.5, "primary isophote's major axis over the background square's side",
+    "A candidate of the wider square replaces the first pass only where its primary isophote (t = 0.7) "
+    "is at least half the first square across: the foot of a Gaussian lobe (0.1 of its height) is "
+    "sqrt(ln 10 / ln(1 / 0.7)) = 2.5 times wider than its 0.7 isophote, so the first square then "
+    "fits inside the lobe's foot. A smaller highlight was measured well by the first square and its "
+    "verdict stands.", basis="physics", stage=_D)
 MULTIRES_SIGMA_MIN_PX = decision(
     "MULTIRES_SIGMA_MIN_PX", 2.0, "px (Gaussian sigma)",
     "Frames smoothed by at least this sigma are searched at half resolution twice over: the "

@@ -22,7 +22,7 @@ from simtest.reconstruct.detect import (
     mask_labels,
     validate_image,
 )
-from simtest.reconstruct.detect_pixels import _gray_and_grey, _gray_native, _median
+from simtest.reconstruct.detect_pixels import _gray_and_grey, _gray_native, _median, wide_lobe_boxes
 from simtest.reconstruct.frame_prep import _is_gray
 
 
@@ -734,3 +734,63 @@ def test_clipped_tops_on_a_sheen_near_the_ceiling_are_candidates():
     # (the sheen's rim is in both: the reduced opening, enlarged, smears its 120-level edge)
     assert not plain[tops].any()
     assert np.array_equal(censored.astype(bool), plain.astype(bool) | tops)
+
+
+# --- broad lobes: the reduced look before a detection on a wider background square ---------------
+
+_WIDE = dict(side=216, wider_than=72.0, core_min_px=36.0, isovalue=0.7)  # a 960 x 720 frame's squares
+
+
+def _wide_boxes(img):
+    return wide_lobe_boxes(img.astype(np.float32), 1.0, _WIDE["side"], _WIDE["wider_than"], _WIDE["core_min_px"],
+                           _WIDE["isovalue"])
+
+
+@pytest.mark.parametrize("sigma, found", [(50.0, True), (10.0, False)])
+def test_a_lobe_wider_than_the_narrow_square_gets_a_box_around_its_peak(sigma, found):
+    # a Gaussian lobe on a flat background: its 0.6 level spans 2 sigma sqrt(2 ln(1 / 0.6)) = 2.02
+    # sigma (101 px for sigma 50, wider than 72; 20 px for sigma 10) and its 0.7 core 1.69 sigma
+    centre = (430.0, 350.0)
+    img = 0.2 + gaussian((720, 960), centre, sigma, 0.6)
+    boxes = _wide_boxes(img)
+    if not found:
+        assert len(boxes) == 0
+        return
+    assert len(boxes) == 1
+    r0, r1, c0, c1 = boxes[0]
+    assert r0 <= centre[1] < r1 and c0 <= centre[0] < c1
+    # the box holds the 0.6 level (2.02 sigma across), widened by one reduced pixel (72 // 16 = 4 px) and
+    # rounded to the reduced grid (4 px more)
+    assert 2.02 * sigma - 8 <= max(r1 - r0, c1 - c0) <= 2.02 * sigma + 16
+
+
+def test_a_glint_on_a_wide_pale_plateau_has_too_small_a_core_for_a_box():
+    # a flat-topped pale patch 160 px across at 0.62 of the glint's height, and a glint (sigma 3 px)
+    # at its middle: the 0.6 level holds the whole patch (wide), the 0.7 core only the glint (small)
+    v, u = np.mgrid[0:720, 0:960].astype(float)
+    patch = 0.31 / (1.0 + np.exp((np.hypot(u - 480, v - 360) - 80.0) / 2.0))
+    img = 0.2 + patch + gaussian((720, 960), (480.0, 360.0), 3.0, 0.19)
+    assert len(_wide_boxes(img)) == 0
+    # the same patch without the glint is a broad top of its own, and gets its box
+    assert len(_wide_boxes(0.2 + patch)) == 1
+
+
+@given(r0=st.integers(0, 500), c0=st.integers(0, 500), bh=st.integers(1, 300), bw=st.integers(1, 300),
+       margin=st.integers(0, 200), grid=st.integers(1, 40), h=st.integers(1, 900), w=st.integers(1, 900))
+@settings(max_examples=200, deadline=None)
+def test_a_broad_lobes_region_holds_its_box_and_margin_on_the_reduced_grid(r0, c0, bh, bw, margin, grid, h, w):
+    # the region detected again around a broad lobe: the box and its margin (within the frame), its
+    # corners on the wider square's reduced grid unless at the frame's edge, so that the region's
+    # reduction has the frame's block boundaries
+    from simtest.reconstruct.broad_lobes import _aligned_crop
+
+    box = np.array([r0, min(r0 + bh, h), c0, min(c0 + bw, w)])
+    crop = _aligned_crop(box, margin, grid, (h, w))
+    assert crop.row0 <= max(0, box[0] - margin) and crop.row1 >= min(h, box[1] + margin)
+    assert crop.col0 <= max(0, box[2] - margin) and crop.col1 >= min(w, box[3] + margin)
+    assert 0 <= crop.row0 and crop.row1 <= h and 0 <= crop.col0 and crop.col1 <= w
+    assert crop.row0 % grid == 0 and crop.col0 % grid == 0
+    assert crop.row1 in (h,) or crop.row1 % grid == 0
+    assert crop.col1 in (w,) or crop.col1 % grid == 0
+    # and no wider than a grid step past the margin
+    assert crop.row0 > box[0] - margin - grid and crop.col0 > box[2] - margin - grid

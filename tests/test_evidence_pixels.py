@@ -149,7 +149,7 @@ def test_the_panel_counts_are_the_panel_maps_sums(seed, h, w):
     g[r0 : r0 + int(rng.integers(4, h)), c0 : c0 + int(rng.integers(4, w))] = 50.0
     rr = np.array([[0, h, 0, w], [r0, min(h, r0 + 3), c0, min(w, c0 + 3)], [0, 1, 0, 1]], np.int64)
     panel = px.panels(g, 1.0, 10)
-    got = px.panel_pixels_in(g, 1.0, 10, rr)
+    got = px.pixels_in(panel, rr)
     assert got.tolist() == [int(panel[a:b, c:d].sum()) for a, b, c, d in rr]
 
 

@@ -563,16 +563,17 @@ def test_reconstruct_pauses_the_cyclic_collector_and_restores_it(monkeypatch):
     gives the collector back as it was; Estimates stays a list type."""
     import gc
 
+    from simtest.reconstruct import frame_pass
     from simtest.reconstruct import pipeline as P
 
     seen = []
-    real = P.detect_specularities
+    real = frame_pass.detect_specularities
 
     def spy(*a, **k):
         seen.append(gc.isenabled())
         return real(*a, **k)
 
-    monkeypatch.setattr(P, "detect_specularities", spy)
+    monkeypatch.setattr(frame_pass, "detect_specularities", spy)
     img = np.zeros((40, 40), np.uint8)
     img[18:22, 18:22] = 200
     K = np.array([[100.0, 0, 19.5], [0, 100.0, 19.5], [0, 0, 1]])

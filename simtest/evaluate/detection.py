@@ -644,9 +644,13 @@ def confidence_rows(frames: list[LabelledFrame], settings=None, *,
         ests = verified[g] if verified is not None else reconstruct(
             fr.image, fr.camera, settings=settings.replace(verify=True), lights=fr.lights)
         _, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
-        fitted = np.array([e.status in PASSING for e in ests])
+        # each verified estimate's row of the unverified fits (a broad lobe's, measured on a wider
+        # background, has none: the unverified frame has no verdict to look for one)
+        at = {tuple(e.bp_px): k for k, e in enumerate(fits)}
+        row = np.array([at.get(tuple(e.bp_px), -1) for e in ests], np.int64)
+        fitted = np.array([e.status in PASSING for e in ests], dtype=bool) & (row >= 0)
         X = confidence_features(ev, np.where(np.isfinite(res), res, RESIDUAL_MAX_REL))
-        xs.append(X[fitted])
+        xs.append(X[row[fitted]])
         ys.append(np.array([r["tp"] for r in rows], dtype=bool)[fitted])
         gs.append(np.full(int(fitted.sum()), g))
     return np.concatenate(xs), np.concatenate(ys), np.concatenate(gs)

@@ -101,6 +101,8 @@ class Detection:
     luma32 : ndarray of shape (H, W), float32, or None
         The unrounded luma of a colour 8- or 16-bit RGB frame, where detection smoothed it at full
         resolution (read-only).
+    background_px : int or None
+        Side of the background square of ``method="local_peak"``, px; None for ``"full_scale"``.
     """
 
     candidates: list[Candidate] = field(default_factory=list)
@@ -112,6 +114,7 @@ class Detection:
     grey: bool | None = None
     half: np.ndarray | None = None
     luma32: np.ndarray | None = None
+    background_px: int | None = None
 
     @property
     def n_components(self) -> int:
@@ -276,7 +279,7 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
                          min_plateau_px: int = 2, roi_scale: float = 3.0, roi_margin_px: int = 4,
                          max_candidates: int | None = None, smooth_sigma_px: float | None = 0.0,
                          method: str = "full_scale", peak_rel: float = 0.6,
-                         contrast_min_rel: float = TOPHAT_MIN_REL) -> Detection:
+                         contrast_min_rel: float = TOPHAT_MIN_REL, background_px: int | None = None) -> Detection:
     """Find candidate specular highlights in a whole image.
 
     Parameters
@@ -310,6 +313,9 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
         ``black_border``; saturated plateaus are counted after a 3 x 3 closing, from 3 px.
     peak_rel, contrast_min_rel : float
         See :func:`local_peak_mask` (``method="local_peak"`` only).
+    background_px : int, optional
+        Side of the background square, px (``method="local_peak"`` only); default
+        :func:`background_side_px` of the frame and its clipped plateaus.
 
     Returns
     -------
@@ -343,7 +349,7 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
             img, native, fs, saturation_level, grey=grey is True, min_area_px=min_area_px, ellipticity_min=ellipticity_min,
             min_plateau_px=min_plateau_px, roi_scale=roi_scale, roi_margin_px=roi_margin_px,
             max_candidates=max_candidates, smooth_sigma_px=float(smooth_sigma_px), peak_rel=peak_rel,
-            contrast_min_rel=contrast_min_rel)
+            contrast_min_rel=contrast_min_rel, background_px=background_px)
         if det is not None:
             return replace(det, grey=grey)
     luma32 = None
@@ -353,14 +359,14 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
         gray = cv2.GaussianBlur(gray.astype(np.float32) if luma32 is None else luma32, (0, 0),
                                 float(smooth_sigma_px), borderType=cv2.BORDER_REFLECT)
     h, w = gray.shape
-    levels = gray32 = half = None
+    levels = gray32 = half = side = None
     clipped = near = None  # whole-frame clipped and near-ceiling masks, when the method computes them
     if method == "local_peak":
         if not 0.0 < peak_rel < 1.0:
             raise ValueError(f"peak_rel must be in (0, 1), got {peak_rel!r}")
         clipped = clipped_mask(img, saturation_level, native, grey=grey is True)
         near = near_ceiling_mask(img, saturation_level, native, grey=grey is True)
-        side = background_side_px((h, w), clipped)
+        side = int(background_px) if background_px else background_side_px((h, w), clipped)
         # the float32 intensities of the mask and of the scope border, converted once
         gray32 = gray.astype(np.float32, copy=False)
         halves: list = []
@@ -388,7 +394,8 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
         half = None  # the smoothed gray's means: not the native gray's, which the verifier reads
     elif half is not None:
         half.setflags(write=False)  # the native gray's 2 x 2 means: the verifier's too
-    return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed, native, grey, half=half, luma32=luma32)
+    return Detection(out, fs, thr, max(0, n_comps - len(out)), smoothed, native, grey, half=half, luma32=luma32,
+                     background_px=side)
 
 
 #: Half-resolution detection takes frames with at most this many candidates (each examined in a
@@ -398,7 +405,7 @@ MULTIRES_CANDIDATES_MAX = 64
 
 def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, min_area_px, ellipticity_min, min_plateau_px,
                             roi_scale, roi_margin_px, max_candidates, smooth_sigma_px, peak_rel,
-                            contrast_min_rel) -> Detection:
+                            contrast_min_rel, background_px=None) -> Detection:
     """:func:`detect_specularities` (``"local_peak"``) of a smoothed frame on the frame reduced by 2 x 2
     block means, its candidates placed at full resolution (BP refined on the full frame's smoothing).
 
@@ -409,7 +416,7 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
     h2, w2 = h // 2, w // 2
     clipped = clipped_mask(img, saturation_level, native, grey=grey)
     near = near_ceiling_mask(img, saturation_level, native, grey=grey)
-    side = background_side_px((h, w), clipped)
+    side = int(background_px) if background_px else background_side_px((h, w), clipped)
     half = cv2.resize(native[: 2 * h2, : 2 * w2].astype(np.float32, copy=False), (w2, h2), interpolation=cv2.INTER_AREA)
     sigma2 = float(np.sqrt(max(smooth_sigma_px ** 2 - 0.25, 0.0)) / 2.0)
     gray2 = cv2.GaussianBlur(half, (0, 0), sigma2, borderType=cv2.BORDER_REFLECT)
@@ -469,7 +476,8 @@ def _detect_half_resolution(img, native, fs, saturation_level, *, grey=False, mi
             out.append(got)
     out.sort(key=lambda c: -c.peak)
     half.setflags(write=False)
-    return Detection(out, fs, contrast_min_rel * fs, max(0, n_comps - len(out)), None, native, half=half)
+    return Detection(out, fs, contrast_min_rel * fs, max(0, n_comps - len(out)), None, native, half=half,
+                     background_px=side)
 
 
 @dataclass(frozen=True)

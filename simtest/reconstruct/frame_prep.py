@@ -78,6 +78,8 @@ class _Frame:
     ring_luma: np.ndarray | None = None
     #: The frame's tone curve that the colour checks undo; None: a display-encoded (sRGB) frame.
     response: object | None = None
+    #: Side of the background square of detection and the checks, px; None: the frame's default.
+    background_px: int | None = None
 
     @classmethod
     def make(cls, image, K, dist_coeffs, settings: ReconSettings, noise_roi: Roi | None = None) -> _Frame:

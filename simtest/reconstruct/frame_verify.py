@@ -17,23 +17,26 @@ from simtest.reconstruct.verify import assess, bp_checks, confidence, seed_openi
 
 
 def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
-                  whole: bool) -> tuple[tuple | None, dict, np.ndarray]:
-    """``(verifier, early, fitted)``: the verifier's inputs (None without ``verify``), the BP checks'
-    ``k -> detail`` of the ``fitted`` candidates that fail (``not_specular``, neither contoured nor
-    fitted), and ``fitted`` without them (cleared in place).
+                  whole: bool, verifier: tuple | None = None) -> tuple[tuple | None, dict, np.ndarray]:
+    """``(verifier, early, fitted)``: the verifier's inputs (None without ``verify``; given: an earlier
+    pass's of the same frame), the BP checks' ``k -> detail`` of the ``fitted`` candidates that fail
+    (``not_specular``, neither contoured nor fitted), and ``fitted`` without them (cleared in place).
     """
     if not frame.settings.verify:
         return None, {}, fitted
-    verifier = _verifier_inputs(frame, det.gray if whole else None, frame.noise if whole else None)
+    given = verifier is not None
+    if not given:
+        verifier = _verifier_inputs(frame, det.gray if whole else None, frame.noise if whole else None)
     gray_v, grey_v, noise_v = verifier
-    if whole and det.half is not None and gray_v is det.gray:
+    if not given and whole and det.half is not None and gray_v is det.gray:
         # the verifier's reduced opening from detection's 2 x 2 means of the same gray
-        seed_opening(gray_v, background_side_px(gray_v.shape), det.half)
+        seed_opening(gray_v, frame.background_px or background_side_px(gray_v.shape), det.half)
     fk = np.flatnonzero(fitted)
     sat = np.array([det.candidates[k].saturated for k in fk.tolist()], dtype=bool)
     early = {k: d for k, d in zip(fk.tolist(), bp_checks(frame.img, gray_v, bps_arr[fk], sat,
                                                          full_scale=frame.full_scale, noise=noise_v,
-                                                         grey=grey_v, response=frame.response)) if d is not None}
+                                                         grey=grey_v, response=frame.response,
+                                                         background_px=frame.background_px)) if d is not None}
     fitted[list(early)] = False
     return verifier, early, fitted
 
@@ -62,7 +65,8 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     if not fit:
         return list(ests)
     ev, res, inside = assess(frame.img, gray, fit, full_scale=frame.full_scale, noise=noise, grey=grey,
-                             camera=frame.camera, lights=lights, response=frame.response)
+                             camera=frame.camera, lights=lights, response=frame.response,
+                             background_px=frame.background_px)
     conf = confidence(ev, res).tolist()
     checks = verdict(ev, res, inside, only=[k for k, e in enumerate(fit) if e.ok])
     judged = {}

@@ -43,12 +43,12 @@ import numpy as np
 
 from simtest.geometry.cameras import CameraModel
 from simtest.reconstruct._pixels import Roi
-from simtest.reconstruct.assemble import SpecularityEstimate, _complete, _merge_guard
-from simtest.reconstruct.detect import detect_specularities, validate_image
-from simtest.reconstruct.failures import OK
-from simtest.reconstruct.frame_prep import _Frame, _prepared, as_camera
-from simtest.reconstruct.frame_verify import _early_checks, _verified
-from simtest.reconstruct.isophotes import RESOLVE_BATCH_ISOPHOTES, _candidate_drafts, _estimate_one, _find_bp, _resolve
+from simtest.reconstruct.assemble import SpecularityEstimate, _complete
+from simtest.reconstruct.broad_lobes import with_broad_lobes
+from simtest.reconstruct.detect import validate_image
+from simtest.reconstruct.frame_pass import frame_pass
+from simtest.reconstruct.frame_prep import _Frame, as_camera
+from simtest.reconstruct.isophotes import RESOLVE_BATCH_ISOPHOTES, _estimate_one, _find_bp, _resolve
 from simtest.reconstruct.result import Reconstruction
 from simtest.reconstruct.settings import ReconSettings
 from simtest.reconstruct.verify import shared_passes
@@ -248,24 +248,7 @@ def reconstruct(image, K, isovalues: float | Sequence[float] | None = None, *, d
     r = Roi(0, img.shape[0], 0, img.shape[1]) if roi is None else Roi.coerce(roi, img.shape)
     frame = _Frame.make(img, K, dist_coeffs, settings, noise_roi=r)
     frame = frame if response is None else dataclasses.replace(frame, response=response)
-    sub = img[r.slices]
-    det = detect_specularities(sub, brightness_rel=settings.brightness_rel, full_scale=frame.full_scale,
-                               saturation_level=frame.saturation_level, min_area_px=settings.min_area_px,
-                               smooth_sigma_px=frame.smooth_sigma_px, method=settings.detection,
-                               peak_rel=settings.peak_rel, max_candidates=settings.max_candidates)
-    whole = sub.shape == img.shape
-    frame = _prepared(frame, det, whole)
-    # every candidate's BP in the image, in one addition (each estimate's BP is a row of it)
-    bps_arr = np.array([c.bp_uv for c in det.candidates], dtype=np.float64).reshape(-1, 2) + \
-        np.array([r.col0, r.row0], dtype=np.float64)
-    others, keep, row_in_others = _merge_guard(det, bps_arr)
-    # every candidate's BP ray, and the fit frames of the accepted ones, in one call of the model
-    rays = frame.bp_rays(bps_arr)
-    has_ray = np.isfinite(rays).all(axis=1)
-    fitted = has_ray & np.array([c.status == OK for c in det.candidates], dtype=bool)
-    verifier, early, fitted = _early_checks(frame, det, bps_arr, fitted, whole)
-    done = _complete(_candidate_drafts(frame, det, r, bps_arr, rays, has_ray, fitted, early, others, keep,
-                                       row_in_others))
-    if settings.verify and done:
-        done = _verified(frame, done, verifier=verifier, lights=lights)
+    done, det, again = frame_pass(frame, img, r, lights)
+    if again[1] is not None and settings.detection == "local_peak" and det.background_px:
+        done, det = with_broad_lobes(frame, img, r, lights, done, det, again)
     return Reconstruction.of_frame(done, det, settings, frame.camera, img.shape)

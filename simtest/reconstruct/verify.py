@@ -152,7 +152,7 @@ def _shared(fn, img: np.ndarray, *args):
     memo = _SHARED.get()
     if memo is None:
         return fn(img, *args)
-    key = (fn.__name__, img.__array_interface__["data"][0], img.shape, img.strides, img.dtype.str, args)
+    key = (fn.__name__, *_array_key(img), args)
     hit = memo.get(key)
     if hit is None:
         hit = memo[key] = (img, fn(img, *args))
@@ -165,8 +165,9 @@ def _float32(img: np.ndarray) -> np.ndarray:
 
 
 def _opening_small(img: np.ndarray, side: int):
-    """:func:`simtest.reconstruct.evidence_pixels.opening_small` (shared in a block)."""
-    return px.opening_small(img, side)
+    """:func:`simtest.reconstruct.evidence_pixels.opening_small` (shared in a block); a square wider than
+    the frame's (:func:`background_side_px`, a broad lobe's) reduced at any frame size."""
+    return px.opening_small(img, side, exact=side <= background_side_px(img.shape[:2]))
 
 
 def seed_opening(gray: np.ndarray, side: int, half: np.ndarray) -> bool:
@@ -179,8 +180,7 @@ def seed_opening(gray: np.ndarray, side: int, half: np.ndarray) -> bool:
     f = max(1, side // 16)
     if memo is None or f % 2 or h % f or w % f or half.shape != (h // 2, w // 2):
         return False
-    key = (_opening_small.__name__, gray.__array_interface__["data"][0], gray.shape, gray.strides, gray.dtype.str,
-           (side,))
+    key = (_opening_small.__name__, *_array_key(gray), (side,))
     memo[key] = (gray, px.opening_small(gray, side, half))
     return True
 
@@ -233,7 +233,21 @@ def _panel_pixels_in(gray: np.ndarray, noise: np.ndarray, rr: np.ndarray, image:
         return np.zeros(len(rr), np.int64)
     rgb = image[..., :3] if image is not None and image.ndim == 3 and image.dtype.kind == "u" else None
     ceiling = float(np.iinfo(rgb.dtype).max) if rgb is not None else None
-    return px.panel_pixels_in(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rr, rgb, ceiling, full_scale)
+    # the panels of a frame once inside shared_passes (a second pass on a wider background reads them again)
+    memo = _SHARED.get()
+    key = ("panels", _array_key(gray), None if rgb is None else _array_key(rgb), ceiling, full_scale,
+           np.asarray(noise, np.float64).tobytes())
+    hit = None if memo is None else memo.get(key)
+    if hit is None:
+        hit = (gray, rgb, px.panels(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rgb, ceiling, full_scale))
+        if memo is not None:
+            memo[key] = hit
+    return px.pixels_in(hit[2], rr)
+
+
+def _array_key(a: np.ndarray) -> tuple:
+    """An array's memory, shape, strides and dtype: its key in :func:`shared_passes`' memo."""
+    return a.__array_interface__["data"][0], a.shape, a.strides, a.dtype.str
 
 
 #: :func:`frame_evidence` measures only around the candidates while its windows cover at most this
@@ -374,8 +388,9 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
 
 
 def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, *, full_scale: float,
-                       response=None) -> np.ndarray:
-    """The colour check of ``not_specular`` alone at the BPs ``bps_uv`` (N, 2) (u, v) px of ``image``.
+                       response=None, background_px: int | None = None) -> np.ndarray:
+    """The colour check of ``not_specular`` alone at the BPs ``bps_uv`` (N, 2) (u, v) px of ``image``
+    (``background_px``: as for :func:`bp_checks`).
 
     Returns bool (N,); all True for a grey frame.
     """
@@ -384,12 +399,14 @@ def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, 
         return np.ones(len(bps), bool)
     ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
     src = image[..., :3]
-    bg = _as_srgb(_opening_at(src, background_side_px(gray.shape), ij[:, 1], ij[:, 0]), full_scale, response)
+    side = background_px or background_side_px(gray.shape)
+    bg = _as_srgb(_opening_at(src, side, ij[:, 1], ij[:, 0]), full_scale, response)
     return _specular_colour(*_bp_colour(src, ij[:, 1], ij[:, 0], bg, full_scale, response))
 
 
 def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
-              full_scale: float, noise: float, grey: bool = False, response=None) -> list[str | None]:
+              full_scale: float, noise: float, grey: bool = False, response=None,
+              background_px: int | None = None) -> list[str | None]:
     """The checks of :func:`verdict` that read only a candidate's BP (colour and height), before any fit.
 
     Parameters
@@ -400,6 +417,8 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
         The candidates' BPs (u, v), px.
     clipped : ndarray of bool, shape (N,)
         The BP is on a clipped plateau (the height check is skipped).
+    background_px : int, optional
+        Side of the background opening's square, px; default :func:`background_side_px` of ``gray``.
 
     Returns
     -------
@@ -415,7 +434,8 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
     rows, cols = rc[:, 0], rc[:, 1]
     rois = np.stack([rows, rows + 1, cols, cols + 1], axis=1)
     ev = frame_evidence(image, gray, bps, rois, full_scale=full_scale, noise=noise,
-                        background_px=background_side_px(gray.shape), windowed=True, grey=grey, panels=False,
+                        background_px=background_px or background_side_px(gray.shape), windowed=True, grey=grey,
+                        panels=False,
                         response=response)
     ev = replace(ev, clipped=np.asarray(clipped, bool).reshape(-1))
     checks = verdict(ev, np.full(n, np.nan), np.zeros(n, bool))
@@ -439,7 +459,8 @@ def _reach_axes(t) -> np.ndarray:
 
 
 def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, windowed: bool | None = None,
-           noise: float | None = None, grey: bool = False, camera=None, lights=None, response=None):
+           noise: float | None = None, grey: bool = False, camera=None, lights=None, response=None,
+           background_px: int | None = None):
     """The evidence on a frame's estimates, with their fits' residual ratios and BP placement.
 
     Parameters
@@ -462,6 +483,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     lights : LightRig, optional
         The scope's light rig: a peak where another guide's highlight can lie is neither a
         neighbour nor the surround's light. None (or one light): no pairing.
+    background_px : int, optional
+        Side of the background opening's square, px; default :func:`background_side_px` of ``gray``.
 
     Returns
     -------
@@ -508,7 +531,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     # no image outline at all: judged on the rest
     res[ok & ~fitted], inside[ok & ~fitted] = 0.0, True
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
-                        noise=noise_sigma(gray) if noise is None else float(noise), background_px=background_side_px(gray.shape),
+                        noise=noise_sigma(gray) if noise is None else float(noise),
+                        background_px=background_px or background_side_px(gray.shape),
                         reach_px=reach, ellipses=ells, windowed=windowed, grey=grey, expected=expected,
                         panels=ok, response=response)
     clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
