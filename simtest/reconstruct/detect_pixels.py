@@ -521,7 +521,8 @@ def background_side_px(shape: tuple[int, int], clipped: np.ndarray | None = None
 
 def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.6,
                     contrast_min_rel: float = TOPHAT_MIN_REL, background_px: int | None = None,
-                    censored: np.ndarray | None = None, _parts: list | None = None, _half: list | None = None):
+                    censored: np.ndarray | None = None, reduce: bool = True, _parts: list | None = None,
+                    _half: list | None = None):
     """Bright-candidate mask relative to local peaks (``method="local_peak"``).
 
     The background is the grey opening of the luma by a square of side ``background_px`` (on the
@@ -544,6 +545,8 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     censored : ndarray of shape (H, W), uint8, optional
         Pixels clipped white: candidates wherever they meet the local-peak rule and stand above
         the background at all (the ceiling cuts their top-hat).
+    reduce : bool
+        Open on the area-reduced image (the default); False: on ``gray`` itself.
 
     Returns
     -------
@@ -556,7 +559,7 @@ def local_peak_mask(gray: np.ndarray, full_scale: float, *, peak_rel: float = 0.
     h, w = g.shape
     side = int(background_px) if background_px else background_side_px((h, w))
     # open (and take the local peaks) on the image reduced so that the square is ~16 px
-    f = max(1, side // 16)
+    f = max(1, side // 16) if reduce else 1
     whole = f > 1 and h % f == 0 and w % f == 0  # whole blocks: the reductions by 2 x 2 steps
     if whole:
         small = _area_reduced(g, f, _half)
@@ -624,13 +627,9 @@ def wide_lobe_boxes(gray: np.ndarray, full_scale: float, side: int, wider_than: 
     f = max(1, int(wider_than) // 16)
     small = cv2.resize(gray.astype(np.float32, copy=False), (max(1, w // f), max(1, h // f)),
                        interpolation=cv2.INTER_AREA) if f > 1 else gray.astype(np.float32)
-    k = max(3, side // f)
-    k += 1 - k % 2
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
-    top = cv2.subtract(small, cv2.min(cv2.morphologyEx(small, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE),
-                                      small))
-    peak = cv2.dilate(top, kernel, borderType=cv2.BORDER_REPLICATE)
-    mask = cv2.compare(top, cv2.max(peak * np.float32(peak_rel), float(contrast_min_rel * full_scale)), cv2.CMP_GE)
+    mask, background = local_peak_mask(small, full_scale, peak_rel=peak_rel, contrast_min_rel=contrast_min_rel,
+                                       background_px=max(1, side // f), reduce=False)
+    top = cv2.subtract(small, background)
     _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     x, y, bw, bh = (stats[1:, :4].astype(np.int64) * f).T
     wide = np.flatnonzero(np.maximum(bw, bh) > wider_than)
