@@ -4,6 +4,8 @@ on noisy exact planes and spheres: the plane fit's curvature test and its floor.
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from simtest.geometry import angle_between_deg, project_points
 from simtest.geometry.angles import unit
@@ -166,3 +168,30 @@ def test_the_quadric_patchs_batched_images_are_each_patchs_alone_bit_for_bit():
         image, normal = _quadric_image(d, b_ray, p, arr, Lm)
         assert np.array_equal(images[k], image) and np.array_equal(normals[k], normal), k
         assert np.array_equal(res[k], P.residual(image)), k
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(1, 12), quadric_rows=st.integers(0, 12))
+def test_the_cubic_patchs_batched_images_are_each_patchs_alone_bit_for_bit(seed, k, quadric_rows):
+    """``cubic_patch_fit`` and ``patch_depth_profile`` image their finite differences' points as one
+    batch too (``_cubic_patch_image`` of (K, 11) parameters): each row must be the point's own image
+    and apex normal to the last bit, whatever the mix of cubic rows and quadric rows (all third-order
+    terms 0: no Newton steps), for the reason the quadric's test gives."""
+    from simtest.reconstruct.lightaware import model as lam
+    from simtest.reconstruct.lightaware.cubic import _cubic_patch_image
+
+    rig = LightRig((Light((3.0, 0.0, 0.0), 1.0, "inverse_square", 1.5),
+                    Light((-3.0, 0.0, 0.0), 1.0, "inverse_square")))
+    arr, Lm = lam._rig_arrays(rig), lam._mean_light(rig)
+    K = np.array([[300.0, 0, 0], [0, 300.0, 0], [0, 0, 1.0]])
+    vv, uu = np.mgrid[-20:21, -20:21]
+    d = lam._rays(K, np.column_stack([uu.ravel() + 20.0, vv.ravel() - 10.0]).astype(float))
+    b_ray = unit(np.array([0.07, -0.03, 1.0]))
+    rng = np.random.default_rng(seed)
+    ps = np.array([0.01, -0.02, np.log(25.0), 0.2, -0.05, -0.1, np.log(60.0), 0.1, -0.2, 0.05, 0.3])
+    ps = ps + rng.normal(0.0, 0.2, (k, 11))
+    ps[: min(quadric_rows, k), 7:] = 0.0
+    images, normals = _cubic_patch_image(d, b_ray, ps, arr, Lm)
+    for j, p in enumerate(ps):
+        image, normal = _cubic_patch_image(d, b_ray, p, arr, Lm)
+        assert np.array_equal(images[j], image, equal_nan=True) and np.array_equal(normals[j], normal), j

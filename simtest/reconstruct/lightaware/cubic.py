@@ -43,11 +43,17 @@ _PROFILE_WIDE_START = 0.2
 def _cubic_patch_geometry(d, b_ray, p, Lm):
     """Intersections and surface normals of the cubic patch ``p`` along rays d. Returns
     ``(X (N, 3), ns (N, 3), ok (N,), N (3,), s, frame)``: points and unit normals (camera frame), which rays meet the
-    patch in front of the camera, the apex normal, the apex depth s and the apex frame ``(P0, t1, t2, N)``."""
-    s, P0, N, t1, t2 = _quadric_frame(*plane_basis(b_ray), b_ray, p, Lm)  # (s a numpy scalar: overflows to inf)
-    kxx, kxy, kyy = p[3] / s, p[4] / s, p[5] / s
+    patch in front of the camera, the apex normal, the apex depth s and the apex frame ``(P0, t1, t2, N)``. For K
+    patches ``p`` (K, 11): X, ns (K, N, 3), ok (K, N), N (K, 3), s (K, 1), each bit for bit its own."""
+    one = np.ndim(p) == 1
+    basis = plane_basis(b_ray)
+    frames = [_quadric_frame(*basis, b_ray, pk, Lm) for pk in np.atleast_2d(p)]
+    s, P0, N, t1, t2 = frames[0] if one else (np.array(v) for v in zip(*frames))
+    s = s if one else s[:, None]
+    kxx, kxy, kyy = (p[3] / s, p[4] / s, p[5] / s) if one else (p[:, 3:4] / s, p[:, 4:5] / s, p[:, 5:6] / s)
     kzz = 0.5 * (kxx + kyy)
-    cxxx, cxxy, cxyy, cyyy = np.asarray(p[7:11], dtype=np.float64) * np.exp(-2.0 * np.float64(p[2]))
+    c3 = np.asarray(p[..., 7:11], dtype=np.float64) * np.exp(-2.0 * np.asarray(p[..., 2:3], dtype=np.float64))
+    cxxx, cxxy, cxyy, cyyy = c3 if one else c3.T[:, :, None]
     # the quadric's root (as in _quadric_image), then Newton on the full F along the ray
     ax, ay, az, bx, by, bz, t, ok = _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N)
     t = np.where(ok, t, s)
@@ -58,25 +64,27 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
         fy = kxy * x + kyy * y + 0.5 * (cxxy * x * x + 2 * cxyy * x * y + cyyy * y * y)
         return x, y, z, fx, fy, 1.0 + kzz * z
 
-    for _ in range(_CUBIC_NEWTON_STEPS if any((cxxx, cxxy, cxyy, cyyy)) else 0):
+    cubic = np.any(c3 != 0, axis=-1, keepdims=not one)  # a quadric patch keeps the quadric's root
+    for _ in range(_CUBIC_NEWTON_STEPS if np.any(cubic) else 0):
         x, y, z, fx, fy, fz = grad(t)
         F = (z + 0.5 * (kxx * x * x + 2 * kxy * x * y + kyy * y * y + kzz * z * z)
              + (cxxx * x**3 + 3 * cxxy * x * x * y + 3 * cxyy * x * y * y + cyyy * y**3) / 6.0)
         dF = fx * ax + fy * ay + fz * az
         good = np.abs(dF) > 1e-12
-        t = t - np.where(good, F / np.where(good, dF, 1.0), 0.0)
+        t = np.where(cubic, t - np.where(good, F / np.where(good, dF, 1.0), 0.0), t)
     ok &= (t > 0) & np.isfinite(t)
     t = np.where(ok, t, s)
     _, _, _, fx, fy, fz = grad(t)
-    ns = fz[:, None] * N + fx[:, None] * t1 + fy[:, None] * t2
-    ns /= np.sqrt(np.einsum("ij,ij->i", ns, ns))[:, None]
-    return d * t[:, None], ns, ok, N, s, (P0, t1, t2, N)
+    ns = fz[..., None] * N[..., None, :] + fx[..., None] * t1[..., None, :] + fy[..., None] * t2[..., None, :]
+    ns /= np.sqrt(np.einsum("...ij,...ij->...i", ns, ns))[..., None]
+    return d * t[..., None], ns, ok, N, s, (P0, t1, t2, N)
 
 
 def _cubic_patch_image(d, b_ray, p, rig_arr, Lm):
-    """Specular image (N,) of the cubic patch ``p`` along rays d, and its apex normal (3,)."""
+    """Specular image (N,) of the cubic patch ``p`` along rays d, and its apex normal (3,); for K patches
+    ``p`` (K, 11), images (K, N) and normals (K, 3), each bit for bit its own."""
     X, ns, ok, N, s, _ = _cubic_patch_geometry(d, b_ray, p, Lm)
-    return _patch_lobes(d, X, ns, ok, s, np.exp(p[6]), rig_arr), N
+    return _patch_lobes(d, X, ns, ok, s, np.exp(p[..., 6:7] if np.ndim(p) == 2 else p[6]), rig_arr), N
 
 
 def _patch_specular_points(b_ray, p, Lm, lights):
@@ -127,17 +135,16 @@ def _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels):
         return None
     d, b_ray, rig_arr, Lm = P.d, P.b_ray, P.rig_arr, P.Lm
 
-    def res(p):
+    def res(p):  # p (11,) or a batch (K, 11) (the finite differences' points)
         with np.errstate(all="ignore"):
             image = _cubic_patch_image(d, b_ray, p, rig_arr, Lm)[0]
-        if not np.all(np.isfinite(image)):  # a patch run off to an overflow: no image
-            image = 0.0
+        image = np.where(np.isfinite(image).all(axis=-1, keepdims=True), image, 0.0)  # overflow: no image
         return P.residual(image)
 
     px = P.px_per_rad
     x_scale = np.array([1.0 / px, 1.0 / px, 0.1, 0.1, 0.1, 0.1, 0.3, 0.1, 0.1, 0.1, 0.1])
     return {"res": res, "b_ray": b_ray, "Lm": Lm, "rig_arr": rig_arr, "x_scale": x_scale,
-            "sel": P.sel, "step": P.step, "shape": P.shape, "m": n_px}
+            "sel": P.sel, "step": P.step, "shape": P.shape, "m": n_px, "batched": True}
 
 
 def _flat_start(roughness):
@@ -293,7 +300,8 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_lev
     i0 = int(np.argmin(cost))
     with np.errstate(all="ignore"):
         r = opt.least_squares(S["res"], sol[i0], method="lm", x_scale=S["x_scale"],
-                              max_nfev=max_nfev * (_CUBIC_PARAMS + 1), ftol=1e-8, xtol=1e-8)
+                              max_nfev=max_nfev * (_CUBIC_PARAMS + 1), ftol=1e-8, xtol=1e-8,
+                              workers=lambda f, xs: list(S["res"](np.array(list(xs)))))  # one batch
     nfev += r.nfev
     x = r.x
     s_hat, rough = float(np.exp(x[2])), float(np.exp(x[6]))
