@@ -320,7 +320,8 @@ BROAD_ISOPHOTE_REL = decision(
     "is at least half the first square across: the foot of a Gaussian lobe (0.1 of its height) is "
     "sqrt(ln 10 / ln(1 / 0.7)) = 2.5 times wider than its 0.7 isophote, so the first square then "
     "fits inside the lobe's foot. A smaller highlight was measured well by the first square and its "
-    "verdict stands.", basis="physics", stage=_D)
+    "verdict stands. The rule was added after a false ok on a banner tile (tuning data), an isophote "
+    "2 px across; its value is the Gaussian foot's, not fitted to that tile.", basis="physics", stage=_D)
 MULTIRES_SIGMA_MIN_PX = decision(
     "MULTIRES_SIGMA_MIN_PX", 2.0, "px (Gaussian sigma)",
     "Frames smoothed by at least this sigma are searched at half resolution twice over: the "
