@@ -115,15 +115,10 @@ def _patch_specular_points(b_ray, p, Lm, lights):
 def _light_normal_jacobian(b_ray, p, Lm, lights, x_scale) -> np.ndarray:
     """The derivative (J, 3, 11) of each light's specular-point normal in the patch's parameters, by
     central differences (1e-4 of ``x_scale``; NaN where a specular point is not found)."""
-    k = len(p)
-    G = np.zeros((len(lights), 3, k))
-    for i in range(k):
-        dp = np.zeros(k)
-        dp[i] = 1e-4 * x_scale[i]
-        up = _patch_specular_points(b_ray, p + dp, Lm, lights)[0]
-        dn = _patch_specular_points(b_ray, p - dp, Lm, lights)[0]
-        G[:, :, i] = (up - dn) / (2 * dp[i])
-    return G
+    h = 1e-4 * np.asarray(x_scale, dtype=np.float64)
+    return np.stack([(_patch_specular_points(b_ray, p + e, Lm, lights)[0]
+                      - _patch_specular_points(b_ray, p - e, Lm, lights)[0]) / (2 * hi) for e, hi in zip(np.diag(h), h)],
+                    axis=-1)
 
 
 def _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels):
@@ -236,13 +231,9 @@ def _coarse_profile(S, depths, start_roughness, max_nfev):
 
 def _apex_normal_gradient(b_ray, x, x_scale, Lm) -> np.ndarray:
     """dN / dp (3, 11) of the cubic patch's apex normal, by central differences of ``1e-6 x_scale``."""
-    G = np.empty((3, _CUBIC_PARAMS))
-    for i in range(_CUBIC_PARAMS):
-        dp = np.zeros(_CUBIC_PARAMS)
-        dp[i] = 1e-6 * x_scale[i]
-        G[:, i] = (_cubic_patch_geometry(b_ray[None], b_ray, x + dp, Lm)[3]
-                   - _cubic_patch_geometry(b_ray[None], b_ray, x - dp, Lm)[3]) / (2 * dp[i])
-    return G
+    h = 1e-6 * np.asarray(x_scale, dtype=np.float64)
+    N = _cubic_patch_geometry(b_ray[None], b_ray, np.concatenate([x + np.diag(h), x - np.diag(h)]), Lm)[3]
+    return ((N[:_CUBIC_PARAMS] - N[_CUBIC_PARAMS:]) / (2 * h)[:, None]).T  # (the 22 patches as one batch)
 
 
 def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: float | None = None,
