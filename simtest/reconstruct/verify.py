@@ -148,15 +148,16 @@ def shared_passes() -> Iterator[None]:
 
 
 def _shared(fn, img: np.ndarray, *args):
-    """``fn(img, *args)``, computed once per array and arguments inside :func:`shared_passes`."""
+    """``fn(img, *args)``, computed once per array and arguments inside :func:`shared_passes` (array
+    arguments keyed as ``img`` is, and kept alive with it)."""
     memo = _SHARED.get()
     if memo is None:
         return fn(img, *args)
-    key = (fn.__name__, *_array_key(img), args)
+    key = (fn.__name__, *_array_key(img), tuple(_array_key(a) if isinstance(a, np.ndarray) else a for a in args))
     hit = memo.get(key)
     if hit is None:
-        hit = memo[key] = (img, fn(img, *args))
-    return hit[1]
+        hit = memo[key] = (img, args, fn(img, *args))
+    return hit[2]
 
 
 def _float32(img: np.ndarray) -> np.ndarray:
@@ -181,7 +182,7 @@ def seed_opening(gray: np.ndarray, side: int, half: np.ndarray) -> bool:
     if memo is None or f % 2 or h % f or w % f or half.shape != (h // 2, w // 2):
         return False
     key = (_opening_small.__name__, *_array_key(gray), (side,))
-    memo[key] = (gray, px.opening_small(gray, side, half))
+    memo[key] = (gray, (side,), px.opening_small(gray, side, half))  # as _shared stores it
     return True
 
 
@@ -234,15 +235,12 @@ def _panel_pixels_in(gray: np.ndarray, noise: np.ndarray, rr: np.ndarray, image:
     rgb = image[..., :3] if image is not None and image.ndim == 3 and image.dtype.kind == "u" else None
     ceiling = float(np.iinfo(rgb.dtype).max) if rgb is not None else None
     # the panels of a frame once inside shared_passes (a second pass on a wider background reads them again)
-    memo = _SHARED.get()
-    key = ("panels", _array_key(gray), None if rgb is None else _array_key(rgb), ceiling, full_scale,
-           np.asarray(noise, np.float64).tobytes())
-    hit = None if memo is None else memo.get(key)
-    if hit is None:
-        hit = (gray, rgb, px.panels(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rgb, ceiling, full_scale))
-        if memo is not None:
-            memo[key] = hit
-    return px.pixels_in(hit[2], rr)
+    return px.pixels_in(_shared(_frame_panels, gray, noise, rgb, ceiling, full_scale), rr)
+
+
+def _frame_panels(gray: np.ndarray, noise: np.ndarray, rgb, ceiling, full_scale) -> np.ndarray:
+    """:func:`simtest.reconstruct.evidence_pixels.panels` of a frame, with the verifier's panel bars."""
+    return px.panels(gray, PANEL_STD_REL * noise, PANEL_MIN_AREA * gray.size, rgb, ceiling, full_scale)
 
 
 def _array_key(a: np.ndarray) -> tuple:
