@@ -25,7 +25,8 @@ from simtest.dataset.sample import (
     truth_problem,
 )
 from simtest.render.endoscope import light_rig
-from simtest.render.mitsuba_dict import intrinsics_matrix, plane_normal_cam
+from simtest.render.mitsuba_dict import intrinsics_matrix
+from simtest.scene.kinds import plane_normal_cam
 from simtest.simulate import truth
 
 REPO = Path(__file__).resolve().parents[1]

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from simtest.geometry import angle_between_deg, pixel_to_ray
 from simtest.render import RendererUnavailable, choose_variant, render_scene, write_render
-from simtest.render.mitsuba_dict import plane_normal_cam
+from simtest.scene.kinds import plane_normal_cam
 from simtest.render.truth import bisector_cos_image
 from simtest.simulate.truth import bisector
 from simtest.scene import (

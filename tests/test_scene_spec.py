@@ -16,8 +16,8 @@ from simtest.render.mitsuba_dict import (
     intrinsics_matrix,
     light_position_cam,
     mitsuba_scene_dict,
-    plane_normal_cam,
 )
+from simtest.scene.kinds import plane_normal_cam
 from simtest.render.sensor import apply_sensor
 from simtest.scene import (
     SceneError,
@@ -254,3 +254,34 @@ def test_each_kind_says_how_it_renders():
 
     assert {k for k, c in GEOMETRY_TYPES.items() if c.triangulated} == {"mesh", "saddle"}
     assert {k for k, c in GEOMETRY_TYPES.items() if c.frame == "camera"} == {"plane", "saddle"}
+
+
+@settings(max_examples=40, deadline=None)
+@given(kind=st.sampled_from(["plane", "sphere", "cylinder"]), a=st.floats(-8.0, 8.0), b=st.floats(-8.0, 8.0),
+       size=st.floats(3.0, 12.0), tilt=st.floats(0.0, 60.0), eps=st.floats(0.0, 3.0))
+def test_an_analytic_kinds_highlight_lies_on_the_surface_it_gives_mitsuba(kind, a, b, size, tilt, eps):
+    # exact geometry, camera frame: the closed-form BP lies on the surface whose Mitsuba transform the
+    # kind writes (the rectangle's plane; the sphere; the cylinder's side), and its normal is the
+    # surface's there; the tolerance is float64 round-off on mm-sized numbers
+    geo = {"plane": {"type": "plane", "tilt_deg": tilt, "azimuth_deg": 30.0 * a, "distance_mm": 20.0 + size},
+           "sphere": {"type": "sphere", "center_mm": [a, b, 40.0], "radius_mm": size},
+           "cylinder": {"type": "cylinder", "center_mm": [a, b, 40.0], "radius_mm": size,
+                        "axis": [1.0, 0.2 * b, 0.0], "length_mm": 200.0}}[kind]
+    spec = scene_from_dict({"geometry": geo})
+    g, K = spec.geometry, intrinsics_matrix(spec.camera)
+    w2c = np.linalg.inv(cam_to_world_matrix(spec.camera))
+    hl = g.highlight(w2c, np.array([eps, 0.0, 0.0]), K, (spec.camera.width_px, spec.camera.height_px))
+    if hl is None:  # off the image: nothing to check
+        return
+    surface, X, n = g.surface(w2c, {}), np.asarray(hl.bp_mm), np.asarray(hl.normal)
+    if kind == "plane":  # the rectangle's normal is its transform's z column; its centre lies on the plane
+        m = surface["to_world"]
+        z = m[:3, 2] / np.linalg.norm(m[:3, 2])
+        assert abs(z @ (X - m[:3, 3])) < 1e-9 and abs(abs(z @ n) - 1.0) < 1e-12
+    elif kind == "sphere":
+        c = np.asarray(surface["center"])
+        assert abs(np.linalg.norm(X - c) - surface["radius"]) < 1e-9
+        assert np.linalg.norm(n - (X - c) / surface["radius"]) < 1e-9
+    else:  # the side of Mitsuba's unit cylinder about z, mapped by to_world
+        local = np.linalg.solve(surface["to_world"], np.append(X, 1.0))[:3]
+        assert abs(math.hypot(local[0], local[1]) - 1.0) < 1e-9 and 0.0 <= local[2] <= 1.0

@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from simtest.scene.spec import CameraSpec, LightSpec, MeshGeometry, PlaneGeometry, SceneSpec
+from simtest.scene.spec import CameraSpec, LightSpec, MeshGeometry, SceneSpec
 
-__all__ = ["LIGHT_SEED_KEY", "intrinsics_matrix", "cam_to_world_matrix", "light_position_cam", "plane_normal_cam",
-           "rotation_from_z", "mesh_to_world_matrix", "mitsuba_scene_dict"]
+__all__ = ["LIGHT_SEED_KEY", "intrinsics_matrix", "cam_to_world_matrix", "light_position_cam", "mesh_to_world_matrix",
+           "mitsuba_scene_dict"]
 
 #: Stable key of the light-offset draw in ``SeedSequence([seed, LIGHT_SEED_KEY])``.
 LIGHT_SEED_KEY = 0x11647
@@ -64,23 +64,6 @@ def light_position_cam(light: LightSpec, seed: int) -> np.ndarray:
     a = math.radians(light.alpha_deg) if light.alpha_deg is not None else a_draw
     b = light.b if light.b is not None else b_draw
     return light.epsilon_mm * np.array([math.cos(a), math.sin(a), b])
-
-
-def plane_normal_cam(geometry: PlaneGeometry) -> np.ndarray:
-    """Camera-facing unit normal of a plane spec: ``(sin t cos a, sin t sin a, -cos t)``."""
-    t = math.radians(geometry.tilt_deg or 0.0)
-    a = math.radians(90.0 if geometry.azimuth_deg is None else geometry.azimuth_deg)
-    return np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), -math.cos(t)])
-
-
-def rotation_from_z(n: np.ndarray) -> np.ndarray:
-    """A rotation matrix (3, 3) whose third column is the unit vector ``n``."""
-    n = np.asarray(n, dtype=np.float64) / np.linalg.norm(n)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    a = np.cross(helper, n)
-    a /= np.linalg.norm(a)
-    b = np.cross(n, a)
-    return np.column_stack([a, b, n])
 
 
 def mesh_to_world_matrix(geometry: MeshGeometry) -> np.ndarray:
@@ -157,27 +140,8 @@ def mitsuba_scene_dict(spec: SceneSpec, *, light_pos_cam: np.ndarray | None = No
              "intensity": {"type": "rgb", "value": [spec.light.intensity] * 3}}
     bsdf = _bsdf_dict(spec, light_pos_cam)
 
-    if geo.type == "plane":
-        n = plane_normal_cam(geo)
-        foot = -geo.distance_mm * n  # foot of the perpendicular from the camera centre
-        half = geo.extent_mm if geo.extent_mm is not None else 100.0 * geo.distance_mm
-        m = np.eye(4)
-        m[:3, :3] = rotation_from_z(n) * half  # rectangle normal +z -> n (faces the camera)
-        m[:3, 3] = foot
-        surface = {"type": "rectangle", "to_world": m, "bsdf": bsdf}
-    elif geo.type == "sphere":
-        c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
-        surface = {"type": "sphere", "center": [float(x) for x in c], "radius": geo.radius_mm, "bsdf": bsdf}
-    elif geo.type == "cylinder":
-        c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
-        axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
-        axis = w2c[:3, :3] @ (axis / np.linalg.norm(axis))
-        length = geo.length_mm if geo.length_mm is not None else 20.0 * geo.radius_mm
-        # Mitsuba's cylinder: radius 1 around the local z axis, z from 0 to 1.
-        m = np.eye(4)
-        m[:3, :3] = rotation_from_z(axis) @ np.diag([geo.radius_mm, geo.radius_mm, length])
-        m[:3, 3] = c - 0.5 * length * axis
-        surface = {"type": "cylinder", "to_world": m, "bsdf": bsdf}
+    if not geo.triangulated:  # plane, sphere, cylinder (simtest.scene.kinds)
+        surface = geo.surface(w2c, bsdf)
     else:  # mesh, saddle
         if mesh_cam is None:
             raise ValueError(f"{spec.source}: geometry.type {geo.type!r} needs mesh_cam arrays")

@@ -13,8 +13,7 @@ import numpy as np
 from simtest import _llvm
 from simtest._lazy import require
 from simtest.geometry.camera import pixel_to_ray
-from simtest.render.mitsuba_dict import (_SENSOR_TO_WORLD, cam_to_world_matrix, mesh_to_world_matrix, mitsuba_scene_dict,
-                                         plane_normal_cam, rotation_from_z)
+from simtest.render.mitsuba_dict import _SENSOR_TO_WORLD, cam_to_world_matrix, mesh_to_world_matrix, mitsuba_scene_dict
 from simtest.render.tissue import in_camera, tissue_params, with_neighbours
 from simtest.scene.meshes import MeshError, load_mesh
 from simtest.scene.spec import SceneSpec
@@ -166,8 +165,9 @@ def tissue_texture(spec: SceneSpec):
                       film_thickness_mm=mat.film_thickness_mm, film_thickness_spread=mat.film_thickness_spread)
     t = with_neighbours(t, (mat.wall_tissue, mat.wall_centre_mm, mat.wall_radius_mm),
                         (mat.organ_tissue, mat.organ_centre_mm, mat.organ_axes_mm))
-    if spec.geometry.type == "plane":  # the vessels in the plane's own axes (its texture frame: the camera's)
-        t = dataclasses.replace(t, uv_axes=rotation_from_z(plane_normal_cam(spec.geometry))[:, :2].T.copy())
+    axes = None if spec.geometry.triangulated else spec.geometry.texture_axes()
+    if axes is not None:  # the vessels in the surface's own axes (a plane's, in the camera frame)
+        t = dataclasses.replace(t, uv_axes=axes)
     return in_camera(t, cam_to_texture_matrix(spec))
 
 
@@ -245,8 +245,7 @@ def clear_caches() -> None:
 
 def _load_dict(spec: SceneSpec, d: dict):
     mi = require("mitsuba")
-    if spec.geometry.type == "cylinder":
-        # Mitsuba flags float32 round-off in R diag(r, r, length) as "shearing": silence that.
+    if not spec.geometry.triangulated and spec.geometry.quiet_load:  # a false warning on its transform
         level = mi.logger().log_level()
         mi.set_log_level(mi.LogLevel.Error)
         try:

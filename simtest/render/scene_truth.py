@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from simtest.render.mitsuba_dict import cam_to_world_matrix, plane_normal_cam
+from simtest.render.mitsuba_dict import cam_to_world_matrix
 from simtest.render.sensor import apply_sensor, frame_luma, video_frame
 from simtest.render.truth import mesh_highlights
 from simtest.scene.spec import SceneSpec
-from simtest.simulate.truth import HighlightTruth, cylinder_highlight, plane_highlight, sphere_highlight
+from simtest.simulate.truth import HighlightTruth
 from simtest.render.scene_load import _make_caster, _mesh_in_camera
 
 
@@ -23,27 +23,15 @@ def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=N
     geo = spec.geometry
     size = (spec.camera.width_px, spec.camera.height_px)
     w2c = np.linalg.inv(cam_to_world_matrix(spec.camera))
-    hl: HighlightTruth | None
-    if geo.type == "plane":
-        hl = plane_highlight(plane_normal_cam(geo), geo.distance_mm, light_pos, K, size)
-        half = geo.extent_mm if geo.extent_mm is not None else 100.0 * geo.distance_mm
-        foot = -geo.distance_mm * plane_normal_cam(geo)
-        if hl is not None and np.max(np.abs(hl.bp_mm - foot)) > half:
-            hl = None
-    elif geo.type == "sphere":
-        hl = sphere_highlight((w2c @ np.append(geo.center_mm, 1.0))[:3], geo.radius_mm, light_pos, K, size)
-    elif geo.type == "cylinder":
-        c = (w2c @ np.append(geo.center_mm, 1.0))[:3]
-        axis = np.asarray(geo.axis if geo.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
-        length = geo.length_mm if geo.length_mm is not None else 20.0 * geo.radius_mm
-        hl = cylinder_highlight(c, w2c[:3, :3] @ axis, geo.radius_mm, length, light_pos, K, size)
-    else:
-        mesh = _mesh_in_camera(spec)
-        if cast is None:
-            cast = _make_caster(scene, K, pose)
-        return mesh_highlights(cast, res["normals_raw"], res["position_raw"], res["mask"], light_pos, K,
-                               mesh["vertices"], mesh["faces"], mesh["k1"], mesh["k2"], candidates=candidates)
-    return [hl] if hl is not None else []
+    if not geo.triangulated:  # plane, sphere, cylinder: closed forms (simtest.scene.kinds)
+        hl = geo.highlight(w2c, light_pos, K, size)
+        return [hl] if hl is not None else []
+    # mesh, saddle: the search
+    mesh = _mesh_in_camera(spec)
+    if cast is None:
+        cast = _make_caster(scene, K, pose)
+    return mesh_highlights(cast, res["normals_raw"], res["position_raw"], res["mask"], light_pos, K,
+                           mesh["vertices"], mesh["faces"], mesh["k1"], mesh["k2"], candidates=candidates)
 
 
 def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec,

@@ -3,19 +3,27 @@
 Class attributes tell the renderer how to treat a kind: ``type`` (its name in the scene file),
 ``frame`` (``"world"``, or ``"camera"`` when placed relative to the camera) and ``triangulated``
 (rendered as a mesh with per-vertex normals and curvatures). :data:`GEOMETRY_TYPES` is the registry.
+The analytic kinds (not triangulated) carry, in the OpenCV camera frame (mm; ``w2c`` the (4, 4)
+world-to-camera matrix): ``surface(w2c, bsdf)``, their Mitsuba surface description; ``highlight(w2c,
+light_pos, K, size)``, their highlight in closed form (:mod:`simtest.simulate.truth`; None off the image
+or the surface); ``texture_axes()``, the tissue texture's (2, 3) axes (None: the default frame); and
+``quiet_load``, whether Mitsuba's loader warns falsely on their transform.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 from typing import ClassVar
 
+import numpy as np
 from pydantic import Field
 from pydantic.dataclasses import dataclass
 
 from simtest._config import CONFIG, Bool, Int, Num, Str, Vec3
+from simtest.simulate.truth import cylinder_highlight, plane_highlight, sphere_highlight
 
-__all__ = ["PlaneGeometry", "SphereGeometry", "CylinderGeometry", "SaddleGeometry", "MeshGeometry", "GeometrySpec",
+__all__ = ["plane_normal_cam", "rotation_from_z", "PlaneGeometry", "SphereGeometry", "CylinderGeometry", "SaddleGeometry", "MeshGeometry", "GeometrySpec",
            "GEOMETRY_TYPES", "GEOMETRY_KEYS", "GEOMETRY_KEY_ORDER"]
 
 #: The kinds' model settings: frozen, unknown keys refused, NaN and infinity refused.
@@ -31,6 +39,26 @@ GEOMETRY_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "saddle": (("distance_mm", "radius1_mm", "radius2_mm"), ("extent_mm", "resolution")),
     "mesh": (("path",), ("translate_mm", "rotate_deg", "scale", "flip_normals")),
 }
+
+
+def plane_normal_cam(geometry: PlaneGeometry) -> np.ndarray:
+    """Camera-facing unit normal of a plane spec: ``(sin t cos a, sin t sin a, -cos t)``."""
+    t = math.radians(geometry.tilt_deg or 0.0)
+    a = math.radians(90.0 if geometry.azimuth_deg is None else geometry.azimuth_deg)
+    return np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), -math.cos(t)])
+
+
+def rotation_from_z(n: np.ndarray) -> np.ndarray:
+    """A rotation matrix (3, 3) whose third column is the unit vector ``n``."""
+    n = np.asarray(n, dtype=np.float64) / np.linalg.norm(n)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    a = np.cross(helper, n)
+    a /= np.linalg.norm(a)
+    return np.column_stack([a, np.cross(n, a), n])
+
+
+def _in_camera(w2c: np.ndarray, point_mm) -> np.ndarray:
+    return (w2c @ np.append(point_mm, 1.0))[:3]
 
 
 @_frozen
@@ -54,10 +82,30 @@ class PlaneGeometry:
     type: ClassVar[str] = "plane"
     frame: ClassVar[str] = "camera"
     triangulated: ClassVar[bool] = False
+    quiet_load: ClassVar[bool] = False
     tilt_deg: Num | None = Field(None, ge=0.0, lt=90.0)
     azimuth_deg: Num | None = None
     distance_mm: Num | None = Field(None, gt=0.0)
     extent_mm: Num | None = Field(None, gt=0.0)
+
+    def _square(self):  # the camera-facing normal, the foot of the perpendicular, the half side
+        n = plane_normal_cam(self)
+        return n, -self.distance_mm * n, self.extent_mm if self.extent_mm is not None else 100.0 * self.distance_mm
+
+    def surface(self, w2c, bsdf) -> dict:
+        n, foot, half = self._square()
+        m = np.eye(4)
+        m[:3, :3] = rotation_from_z(n) * half  # rectangle normal +z -> n (faces the camera)
+        m[:3, 3] = foot
+        return {"type": "rectangle", "to_world": m, "bsdf": bsdf}
+
+    def highlight(self, w2c, light_pos, K, size):
+        n, foot, half = self._square()
+        hl = plane_highlight(n, self.distance_mm, light_pos, K, size)
+        return None if hl is not None and np.max(np.abs(hl.bp_mm - foot)) > half else hl
+
+    def texture_axes(self) -> np.ndarray:  # the plane's own in-plane axes
+        return rotation_from_z(plane_normal_cam(self))[:, :2].T.copy()
 
 
 @_frozen
@@ -75,8 +123,19 @@ class SphereGeometry:
     type: ClassVar[str] = "sphere"
     frame: ClassVar[str] = "world"
     triangulated: ClassVar[bool] = False
+    quiet_load: ClassVar[bool] = False
     center_mm: Vec3 | None = None
     radius_mm: Num | None = Field(None, gt=0.0)
+
+    def surface(self, w2c, bsdf) -> dict:
+        return {"type": "sphere", "center": [float(x) for x in _in_camera(w2c, self.center_mm)],
+                "radius": self.radius_mm, "bsdf": bsdf}
+
+    def highlight(self, w2c, light_pos, K, size):
+        return sphere_highlight(_in_camera(w2c, self.center_mm), self.radius_mm, light_pos, K, size)
+
+    def texture_axes(self) -> None:
+        return None
 
 
 @_frozen
@@ -98,10 +157,31 @@ class CylinderGeometry:
     type: ClassVar[str] = "cylinder"
     frame: ClassVar[str] = "world"
     triangulated: ClassVar[bool] = False
+    quiet_load: ClassVar[bool] = True  # float32 round-off in R diag(r, r, length) reads to Mitsuba as "shearing"
     center_mm: Vec3 | None = None
     radius_mm: Num | None = Field(None, gt=0.0)
     axis: Vec3 | None = None
     length_mm: Num | None = Field(None, gt=0.0)
+
+    def _axis_length(self):
+        axis = np.asarray(self.axis if self.axis is not None else (1.0, 0.0, 0.0), dtype=np.float64)
+        return axis, self.length_mm if self.length_mm is not None else 20.0 * self.radius_mm
+
+    def surface(self, w2c, bsdf) -> dict:
+        axis, length = self._axis_length()
+        axis = w2c[:3, :3] @ (axis / np.linalg.norm(axis))
+        m = np.eye(4)  # Mitsuba's cylinder: radius 1 about the local z axis, z from 0 to 1
+        m[:3, :3] = rotation_from_z(axis) @ np.diag([self.radius_mm, self.radius_mm, length])
+        m[:3, 3] = _in_camera(w2c, self.center_mm) - 0.5 * length * axis
+        return {"type": "cylinder", "to_world": m, "bsdf": bsdf}
+
+    def highlight(self, w2c, light_pos, K, size):
+        axis, length = self._axis_length()
+        return cylinder_highlight(_in_camera(w2c, self.center_mm), w2c[:3, :3] @ axis, self.radius_mm, length,
+                                  light_pos, K, size)
+
+    def texture_axes(self) -> None:
+        return None
 
 
 @_frozen
