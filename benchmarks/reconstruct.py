@@ -46,7 +46,7 @@ from benchmarks.inputs import (VIDEO_FRAMES, VIDEO_STEP_PX, banner_frame, banner
                                synthetic_frame, synthetic_offset_highlight, synthetic_roi_image,
                                video_first_frame)
 from benchmarks.opencv_replay import opencv_calls, replay_opencv_ms
-from benchmarks.timing import clone_env, cpu_s_with_workers, every_core, single_core, time_ms, time_ms_cpu
+from benchmarks.timing import clone_env, cpu_s_with_workers, every_core, runs, single_core, time_ms, time_ms_cpu
 from simtest.bench import BenchResult
 from simtest.constants import SINGLE_THREAD_ENV
 from simtest.geometry.camera_file import CameraFile
@@ -84,7 +84,7 @@ def _bench_colonoscope_rig(res, repeat: int) -> list[BenchResult]:
                                 response=response)
 
     ests = run()
-    med, best, cpu = time_ms_cpu(run, max(2, repeat // 10))
+    med, best, cpu = time_ms_cpu(run, runs(repeat, 10, 2))
     fitted = sum(bool(getattr(e, "light_aware", None)) for e in ests)
     return [BenchResult("reconstruct", name, med, "ms", RIG_FRAME_TARGET_MS, best,
                         f"bar {RIG_FRAME_BAR_MS:g} ms; {len(ests)} candidates, {fitted} fitted with "
@@ -199,7 +199,7 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
                            f"status {est.status}, {n_pts} contour points; CPU {cpu:.3g} ms"))
     # the same highlight BATCH times through reconstruct_rois (fits batched), per highlight
     items = [(img, K, bp, None)] * BATCH
-    med, best, cpu = time_ms_cpu(lambda: reconstruct_rois(items, 0.1), max(3, repeat // 5))
+    med, best, cpu = time_ms_cpu(lambda: reconstruct_rois(items, 0.1), runs(repeat, 5, 3))
     out.append(BenchResult("reconstruct", f"per highlight up to cone axis and circle pose, batched: "
                            f"reconstruct_rois of {BATCH} such highlights / {BATCH}", med / BATCH, "ms", 0.1,
                            best / BATCH, f"CPU {cpu / BATCH:.3g} ms per highlight"))
@@ -218,7 +218,7 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
     out.append(BenchResult("reconstruct", "per highlight: 3 nested isovalues + joint axis",
                            med, "ms", None, best))
 
-    n_frame = max(3, repeat // 5)
+    n_frame = runs(repeat, 5, 3)
     for name, (frame, Kf, _) in (("clean", synthetic_frame()), ("2 % noise", noisy_frame())):
         ests = reconstruct(frame, Kf)
         med, best, cpu = time_ms_cpu(lambda: reconstruct(frame, Kf), n_frame)
@@ -350,14 +350,13 @@ def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int, ta
                           bar: float = 150.0) -> list[BenchResult]:
     """The rows of a frame with hundreds of candidates, every one examined (``target`` and ``bar``, ms),
     and of its OpenCV calls replayed alone (:func:`_opencv_row`): ``frame_camera`` is ``(image, K or camera model)``, or None (one NaN
-    row named ``missing``). Each is timed over ``max(3, repeat // 10)`` runs (5 at the default
-    repeat): a frame takes a tenth of a second or more, and a median of two runs is the mean of
-    a slow and a quick one on a machine whose speed moves."""
+    row named ``missing``). Each is timed over ``runs(repeat, 10, 3)`` runs (5 at the default
+    repeat, one at ``--repeat 1``): a frame takes a tenth of a second or more."""
     if frame_camera is None:
         return [BenchResult("reconstruct", missing, float("nan"), "ms", target)]
     img, cam = frame_camera
     ests = reconstruct(img, cam)
-    n = max(3, repeat // 10)
+    n = runs(repeat, 10, 3)
     med, best, cpu = time_ms_cpu(lambda: reconstruct(img, cam), n)
     return [BenchResult("reconstruct", name, med, "ms", target, best,
                         f"bar {bar:g} ms; {len(ests)} of {ests.n_components} components examined, "

@@ -40,6 +40,13 @@ def time_ms(fn: Callable[[], object], repeat: int) -> tuple[float, float]:
     return time_ms_cpu(fn, repeat)[:2]
 
 
+def runs(repeat: int, share: int, floor: int) -> int:
+    """Timed runs of a costly figure: ``repeat // share``, at least ``floor`` (a median of two runs is
+    the mean of a slow and a quick one on a machine whose speed moves), but never more than the
+    ``repeat`` asked for: ``simtest bench --repeat 1`` times every figure once, as its help says."""
+    return min(max(1, int(repeat)), max(floor, int(repeat) // share))
+
+
 def time_ms_cpu(fn: Callable[[], object], repeat: int) -> tuple[float, float, float]:
     """(median, min) wall time and median CPU time of this process (``time.process_time``) of
     ``fn()`` in ms over ``repeat`` runs after one warm-up.
