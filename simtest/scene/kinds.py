@@ -23,8 +23,8 @@ from pydantic.dataclasses import dataclass
 from simtest._config import CONFIG, Bool, Int, Num, Str, Vec3
 from simtest.simulate.truth import cylinder_highlight, plane_highlight, sphere_highlight
 
-__all__ = ["plane_normal_cam", "rotation_from_z", "PlaneGeometry", "SphereGeometry", "CylinderGeometry", "SaddleGeometry", "MeshGeometry", "GeometrySpec",
-           "GEOMETRY_TYPES", "GEOMETRY_KEYS", "GEOMETRY_KEY_ORDER"]
+__all__ = ["PlaneGeometry", "SphereGeometry", "CylinderGeometry", "SaddleGeometry", "MeshGeometry", "GeometrySpec",
+           "GEOMETRY_TYPES", "GEOMETRY_KEYS", "GEOMETRY_KEY_ORDER", "plane_normal_cam", "rotation_from_z"]
 
 #: The kinds' model settings: frozen, unknown keys refused, NaN and infinity refused.
 _frozen = functools.partial(dataclass, frozen=True, config=CONFIG)
