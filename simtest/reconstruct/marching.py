@@ -98,11 +98,13 @@ def batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np
     ncomp, comp = require("scipy.sparse.csgraph").connected_components(edges, directed=True, connection="weak")
     is_open = np.bincount(comp, ~linked, ncomp) > 0
     open_box = np.bincount(sb, is_open[comp], n) > 0
-    # of a closed box, its cycle of largest signed area (find_contours' orientation): the outer boundary
+    # of a closed box, its cycle of largest signed area (find_contours' orientation): the outer boundary,
+    # if positive (a component that fills its box has only holes, and a hole is never the isophote)
     area = np.bincount(comp, fc * tr - fr * tc, ncomp)
     (comp_box := np.zeros(ncomp, np.int64))[comp] = sb
     o = np.lexsort((area, comp_box))
     top = o[np.append(comp_box[o][1:] != comp_box[o][:-1], True)]  # the last of each box's
+    top = top[area[top] > 0]
     (outer := np.full(n, -1))[comp_box[top]] = top
     sel = np.flatnonzero(np.where(open_box[sb], is_open[comp], outer[sb] == comp))
     bs = sb[sel]
