@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 
 import numpy as np
 
@@ -33,8 +32,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     W, H = model.image_size
     geo = spec.geometry
     mesh = _mesh_in_camera(spec) if geo.triangulated else None
-    key = (variant, "endoscope", spec.camera, spec.material, geo,
-           os.path.getmtime(geo.path) if geo.type == "mesh" else None)
+    key = (variant, "endoscope", spec.camera, spec.material, geo, geo.stamp())
     scene = _SCENE_CACHE.get(key)
     if scene is None:
         d = mitsuba_scene_dict(spec, light_pos_cam=np.zeros(3), mesh_cam=mesh)

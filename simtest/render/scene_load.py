@@ -165,7 +165,7 @@ def tissue_texture(spec: SceneSpec):
                       film_thickness_mm=mat.film_thickness_mm, film_thickness_spread=mat.film_thickness_spread)
     t = with_neighbours(t, (mat.wall_tissue, mat.wall_centre_mm, mat.wall_radius_mm),
                         (mat.organ_tissue, mat.organ_centre_mm, mat.organ_axes_mm))
-    axes = None if spec.geometry.triangulated else spec.geometry.texture_axes()
+    axes = spec.geometry.texture_axes()
     if axes is not None:  # the vessels in the surface's own axes (a plane's, in the camera frame)
         t = dataclasses.replace(t, uv_axes=axes)
     return in_camera(t, cam_to_texture_matrix(spec))
@@ -174,7 +174,7 @@ def tissue_texture(spec: SceneSpec):
 def _mesh_in_scene(spec: SceneSpec) -> dict[str, np.ndarray]:
     """Mesh arrays in the scene frame, cached, read-only: ``vertices``, ``faces``, ``normals``, ``k1``, ``k2``."""
     geo = spec.geometry
-    key: tuple = (geo, os.path.getmtime(geo.path) if geo.type == "mesh" else None)
+    key: tuple = (geo, geo.stamp())
     hit = _MESH_DATA_CACHE.get(key)
     if hit is not None:
         return hit
@@ -245,7 +245,7 @@ def clear_caches() -> None:
 
 def _load_dict(spec: SceneSpec, d: dict):
     mi = require("mitsuba")
-    if not spec.geometry.triangulated and spec.geometry.quiet_load:  # a false warning on its transform
+    if spec.geometry.quiet_load:  # a false warning on its transform
         level = mi.logger().log_level()
         mi.set_log_level(mi.LogLevel.Error)
         try:
@@ -287,7 +287,7 @@ def _mitsuba_scene(spec: SceneSpec, light_pos: np.ndarray, variant: str):
         mat_key: tuple = ("phong", mat.diffuse_albedo > 0.0, spec.light.falloff == "cancel")
     else:
         mat_key = (mat, spec.light.falloff)
-    key = (variant, "mesh", geo, os.path.getmtime(geo.path) if geo.type == "mesh" else None,
+    key = (variant, "mesh", geo, geo.stamp(),
            film, mat_key, shadows, spec.render.spp, spec.render.sampler)
     entry = _SCENE_CACHE.get(key)
     if entry is None:

@@ -6,14 +6,16 @@ Class attributes tell the renderer how to treat a kind: ``type`` (its name in th
 The analytic kinds (not triangulated) carry, in the OpenCV camera frame (mm; ``w2c`` the (4, 4)
 world-to-camera matrix): ``surface(w2c, bsdf)``, their Mitsuba surface description; ``highlight(w2c,
 light_pos, K, size)``, their highlight in closed form (:mod:`simtest.simulate.truth`; None off the image
-or the surface); ``texture_axes()``, the tissue texture's (2, 3) axes (None: the default frame); and
-``quiet_load``, whether Mitsuba's loader warns falsely on their transform.
+or the surface). Every kind has (defaults in :class:`_Kind`) ``texture_axes()``, the tissue texture's (2, 3)
+axes (None: the default frame); ``quiet_load``, whether Mitsuba's loader warns falsely on its transform; and
+``stamp()``, what besides its keys a cached load depends on (a mesh file's modification time; None).
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import os
 from typing import ClassVar
 
 import numpy as np
@@ -61,8 +63,20 @@ def _in_camera(w2c: np.ndarray, point_mm) -> np.ndarray:
     return (w2c @ np.append(point_mm, 1.0))[:3]
 
 
+class _Kind:
+    """What a kind has unless it says otherwise: the default texture frame, no loader warning, no file."""
+
+    quiet_load: ClassVar[bool] = False
+
+    def texture_axes(self) -> np.ndarray | None:
+        return None
+
+    def stamp(self) -> float | None:
+        return None
+
+
 @_frozen
-class PlaneGeometry:
+class PlaneGeometry(_Kind):
     """An infinite (or ``extent_mm``-limited) plane, world frame.
 
     Attributes
@@ -82,7 +96,6 @@ class PlaneGeometry:
     type: ClassVar[str] = "plane"
     frame: ClassVar[str] = "camera"
     triangulated: ClassVar[bool] = False
-    quiet_load: ClassVar[bool] = False
     tilt_deg: Num | None = Field(None, ge=0.0, lt=90.0)
     azimuth_deg: Num | None = None
     distance_mm: Num | None = Field(None, gt=0.0)
@@ -109,7 +122,7 @@ class PlaneGeometry:
 
 
 @_frozen
-class SphereGeometry:
+class SphereGeometry(_Kind):
     """A sphere, world frame.
 
     Attributes
@@ -123,7 +136,6 @@ class SphereGeometry:
     type: ClassVar[str] = "sphere"
     frame: ClassVar[str] = "world"
     triangulated: ClassVar[bool] = False
-    quiet_load: ClassVar[bool] = False
     center_mm: Vec3 | None = None
     radius_mm: Num | None = Field(None, gt=0.0)
 
@@ -134,12 +146,9 @@ class SphereGeometry:
     def highlight(self, w2c, light_pos, K, size):
         return sphere_highlight(_in_camera(w2c, self.center_mm), self.radius_mm, light_pos, K, size)
 
-    def texture_axes(self) -> None:
-        return None
-
 
 @_frozen
-class CylinderGeometry:
+class CylinderGeometry(_Kind):
     """A finite cylinder, world frame.
 
     Attributes
@@ -180,12 +189,9 @@ class CylinderGeometry:
         return cylinder_highlight(_in_camera(w2c, self.center_mm), w2c[:3, :3] @ axis, self.radius_mm, length,
                                   light_pos, K, size)
 
-    def texture_axes(self) -> None:
-        return None
-
 
 @_frozen
-class SaddleGeometry:
+class SaddleGeometry(_Kind):
     """The saddle ``z = d + x^2 / (2 r1) - y^2 / (2 r2)``, camera frame, ``|x|, |y| <= extent``.
 
     A grid mesh with analytic normals and curvatures (:func:`simtest.simulate.truth.saddle_mesh`).
@@ -213,7 +219,7 @@ class SaddleGeometry:
 
 
 @_frozen
-class MeshGeometry:
+class MeshGeometry(_Kind):
     """A triangle mesh file in its own world frame.
 
     Attributes
@@ -236,6 +242,9 @@ class MeshGeometry:
     rotate_deg: Vec3 | None = None
     scale: Num | None = Field(None, gt=0.0)
     flip_normals: Bool | None = None
+
+    def stamp(self) -> float:  # a rewritten file is another surface
+        return os.path.getmtime(self.path)
 
 
 #: The one surface of a scene: a union of the kinds, told apart by their class attribute ``type``.
