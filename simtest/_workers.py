@@ -4,7 +4,8 @@ The workers of a :func:`worker_pool` die with their parent, even one SIGKILLed (
 ``prctl(PR_SET_PDEATHSIG)``), ignore SIGINT (the parent stops them; no traceback of theirs on the
 caller's terminal) and take SIGTERM's default action. When the block is left by an exception (Ctrl-C and
 SIGTERM included, :func:`simtest._exit.signals_interrupt`) the workers are terminated at once, not after
-the queued tasks, and waited for.
+the queued tasks, and waited for. :func:`clean_context` starts workers that inherit no threads and no
+Mitsuba state, forked from a server that has the workers' modules imported.
 """
 
 from __future__ import annotations
@@ -13,12 +14,17 @@ import contextlib
 import ctypes
 import multiprocessing
 import os
+import select
 import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import forkserver
 
-__all__ = ["STOP_WAIT_S", "new_pool", "stop_workers", "worker_pool"]
+from simtest._threads import one_thread_each
+
+__all__ = ["CLEAN_PRELOAD", "STOP_WAIT_S", "clean_context", "new_pool", "stop_workers", "worker_pool"]
 
 #: Seconds a terminated worker is given to exit before it is killed (within the 5 s stop the README promises)
 STOP_WAIT_S = 2.0
@@ -27,16 +33,53 @@ STOP_WAIT_S = 2.0
 _PR_SET_PDEATHSIG = 1
 
 
+#: Modules the fork server of :func:`clean_context` imports before it forks a worker: the harness's and the
+#: dataset's worker code (numpy, scipy, OpenCV; not Mitsuba, whose threads a fork must not copy).
+CLEAN_PRELOAD = ("simtest.harness.runner", "simtest.dataset.generate")
+
+
+def clean_context():
+    """The multiprocessing context of workers that inherit no threads and no renderer state: ``forkserver``
+    (``spawn`` where the platform lacks it). One server per command, started here with :data:`CLEAN_PRELOAD`
+    imported and one BLAS thread (:func:`~simtest._threads.one_thread_each`), forks each worker, which so
+    skips the imports a spawned one makes. The server keeps the environment it started with; a worker
+    gets the caller's ``sys.path`` and working directory."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(list(CLEAN_PRELOAD))
+    with one_thread_each():  # the server imports numpy with one thread; its workers inherit it
+        forkserver.ensure_running()
+    return ctx
+
+
+def _watch_owner(owner_pid: int) -> None:
+    """End this process when the pool's owner ends (a pidfd, waited on by a daemon thread): a worker of
+    :func:`clean_context` has for parent the fork server, which outlives the owner while any worker runs."""
+    try:
+        fd = os.pidfd_open(owner_pid)
+    except ProcessLookupError:
+        os._exit(1)
+    except (OSError, AttributeError):  # no pidfd (not Linux >= 5.3): the owner's handlers still stop us
+        return
+
+    threading.Thread(target=lambda: (select.select([fd], [], []), os._exit(1)), daemon=True).start()
+
+
 def _die_with_parent(parent_pid: int) -> None:
-    """Ask the kernel to SIGKILL this process when its parent dies (Linux); exit at once if it already did."""
+    """Ask the kernel to SIGKILL this process when its parent dies (Linux); exit at once if it already
+    did. A worker whose parent is not the pool's owner (:func:`clean_context`) watches the owner."""
     if not sys.platform.startswith("linux"):
         return
+    ppid = os.getppid()
+    if ppid != parent_pid:  # the fork server's worker, or the owner has gone
+        _watch_owner(parent_pid)
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     except (OSError, AttributeError):  # no prctl: the parent's handlers still stop us
         return
-    if os.getppid() != parent_pid:
+    if os.getppid() != ppid:  # the parent died before the signal was asked for
         os._exit(1)
 
 

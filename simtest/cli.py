@@ -178,7 +178,7 @@ def quiet_warnings() -> None:
     """Silence Python warnings here and in worker processes, unless asked for with ``-W`` or ``PYTHONWARNINGS``."""
     if not sys.warnoptions and "PYTHONWARNINGS" not in os.environ:
         warnings.simplefilter("ignore")
-        os.environ["PYTHONWARNINGS"] = "ignore"  # worker processes (spawn) start with it
+        os.environ["PYTHONWARNINGS"] = "ignore"  # worker processes (and their fork server) start with it
 
 
 def main() -> None:

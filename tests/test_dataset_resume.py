@@ -145,6 +145,22 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+def _pool_processes(pid: int) -> tuple[list[int], list[int]]:
+    """The workers of ``pid``'s pool (spawned, or forked by a fork server) and its fork servers."""
+    workers, servers = [], []
+    for c in _children(pid):
+        try:
+            cmd = Path(f"/proc/{c}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"spawn_main" in cmd:
+            workers.append(c)
+        elif b"forkserver" in cmd:
+            servers.append(c)
+            workers += _children(c)
+    return workers, servers
+
+
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -162,10 +178,10 @@ def test_killing_generate_leaves_no_worker_running(tmp_path, sig):
     proc = subprocess.Popen([sys.executable, str(tmp_path / "slowmod.py")], env=env, cwd=tmp_path)
     try:
         workers: list[int] = []
+        servers: list[int] = []
         deadline = time.monotonic() + 18
         while time.monotonic() < deadline:  # wait until both workers run a sample
-            workers = [c for c in _children(proc.pid)
-                       if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+            workers, servers = _pool_processes(proc.pid)
             if len(workers) == 2 and len(list(tmp_path.glob("ds.running-*"))) == 2:
                 break
             time.sleep(0.1)
@@ -174,9 +190,9 @@ def test_killing_generate_leaves_no_worker_running(tmp_path, sig):
         rc = proc.wait(timeout=15)
         assert rc == (130 if sig == signal.SIGTERM else -signal.SIGKILL)
         deadline = time.monotonic() + 5
-        while time.monotonic() < deadline and any(_alive(w) for w in workers):
+        while time.monotonic() < deadline and any(_alive(w) for w in workers + servers):
             time.sleep(0.05)
-        assert not [w for w in workers if _alive(w)], "workers outlived their parent"
+        assert not [w for w in workers + servers if _alive(w)], "workers outlived their parent"
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -23,7 +23,6 @@ import dataclasses
 import errno
 import fcntl
 import json
-import multiprocessing
 import os
 import resource
 import shutil
@@ -48,7 +47,7 @@ from simtest._dask import SchedulerError, connect
 from simtest._exit import signals_interrupt
 from simtest._io import atomic_write, atomic_write_json, atomic_write_text
 from simtest._lazy import require
-from simtest._workers import new_pool, stop_workers
+from simtest._workers import clean_context, new_pool, stop_workers
 from simtest.dataset.card import _readme, make_card
 from simtest.dataset.config import DatasetConfig, load_config
 from simtest.dataset.sample import Sample, render_sample
@@ -297,11 +296,11 @@ class _Inline:
 
 
 class _Pool(_Inline):
-    """A pool of local processes (spawned, so no Mitsuba state is forked)."""
+    """A pool of local processes (:func:`~simtest._workers.clean_context`: no Mitsuba state is forked)."""
 
     def __init__(self, sample_fn, config, workers: int):
         threads = max(1, (os.cpu_count() or 1) // workers)
-        self.ex = new_pool(workers, mp_context=multiprocessing.get_context("spawn"),
+        self.ex = new_pool(workers, mp_context=clean_context(),
                            initializer=_worker_init, initargs=(threads,))
         self.sample_fn, self.config = sample_fn, config
 
@@ -407,7 +406,7 @@ def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLi
 
     Notes
     -----
-    Local workers are started with the ``spawn`` method (no Mitsuba state is forked), so a script
+    Local workers start as fresh interpreters would (no Mitsuba state is forked), so a script
     calling this with ``workers > 1`` must guard its entry point with
     ``if __name__ == "__main__":``.
     """
@@ -518,7 +517,7 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
                         except BrokenProcessPool as exc:
                             raise SampleError(f"sample {i}: a worker process died ({exc}); a script that calls "
                                               "generate() with workers > 1 needs the `if __name__ == \"__main__\":` "
-                                              "guard (workers are spawned), and a worker killed for memory needs "
+                                              "guard (workers import it), and a worker killed for memory needs "
                                               "fewer workers") from None
                         report.worker_cpu_s += cpu_s
                         if sample.index != i:

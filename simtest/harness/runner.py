@@ -8,7 +8,6 @@ the cause ``exception:<type>`` and its first messages are kept in the case resul
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 import time
 import traceback
@@ -25,7 +24,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, 
 from simtest._dask import connect
 from simtest._lazy import require
 from simtest._threads import one_thread_each
-from simtest._workers import worker_pool
+from simtest._workers import clean_context, worker_pool
 from simtest.harness.protocols import Row, make_runner
 from simtest.harness.suite import Case, Suite, realisation_seed
 
@@ -339,14 +338,12 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
             for c, s, e in tasks:
                 record(run_case_chunk(c, estimators, suite.seed, s, e, suite.external), bar)
         else:
-            with one_thread_each():
-                ctx = mp.get_context("spawn")  # no inherited Mitsuba/LLVM threads
-                # an error or a signal stops the workers at once (simtest._workers)
-                with worker_pool(workers, mp_context=ctx, initializer=_worker_init) as pool:
-                    futs = [pool.submit(run_case_chunk, c, estimators, suite.seed, s, e,
-                                        suite.external) for c, s, e in tasks]
-                    for f in as_completed(futs):
-                        record(f.result(), bar)
+            # no inherited Mitsuba/LLVM threads; an error or a signal stops the workers at once
+            with one_thread_each(), worker_pool(workers, mp_context=clean_context(), initializer=_worker_init) as pool:
+                futs = [pool.submit(run_case_chunk, c, estimators, suite.seed, s, e, suite.external)
+                        for c, s, e in tasks]
+                for f in as_completed(futs):
+                    record(f.result(), bar)
     wall = time.perf_counter() - t0
     results = [_assemble(c, estimators, by_key[(c.key, c.realisations)]) for c in cases]
     cpu, real = {}, {}
