@@ -22,7 +22,8 @@ from typer.testing import CliRunner
 from simtest.cli import app
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct.detect_pixels import frame_ceiling
-from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, pair_plane, pair_starts
+from simtest.reconstruct.rig_pairs import (PAIR_TOL_PX, encloses_only_partners, other_guide_curves, pair_plane,
+                                          pair_starts)
 from simtest.simulate.offset import specular_point
 
 GUIDES_MM = np.array([[-4.0, 0.0, 0.0], [4.0, 0.0, 0.0]])  # the colonoscope rig's two guides
@@ -64,6 +65,27 @@ def test_the_other_guides_specular_point_lies_on_the_predicted_curve(tilt, az, h
     assert len(pts)
     # (the resampling step, 0.5 px, is the bound: well inside the pairing's tolerance)
     assert np.min(np.linalg.norm(pts - uv1, axis=1)) <= 0.5 + 1e-6 < PAIR_TOL_PX
+
+
+@settings(max_examples=60, deadline=None)
+@given(tilt=st.floats(0.0, 45.0), az=st.floats(0.0, 360.0), h=st.floats(5.0, 45.0),
+       f=st.floats(60.0, 400.0), first=st.integers(0, 1), side=st.sampled_from([-1.0, 1.0]))
+def test_an_isophote_around_the_other_guides_highlight_is_not_merged(tilt, az, h, f, first, side):
+    # an exact plane: an isophote (a circle about guide `first`'s BP) that reaches the other guide's
+    # specular point encloses an expected highlight, not another one; a BP off the rig's curves
+    # (beside the pair's midpoint) in it is a merge, unless it is a peak the colour checks refused
+    _, cam, _, (uv0, uv1) = _exact_pair(tilt, az, h, f, first)
+    gap = float(np.linalg.norm(uv1 - uv0))
+    assume(gap > 4 * PAIR_TOL_PX)
+    t = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+    ring = uv0 + (gap + 3.0) * np.stack([np.cos(t), np.sin(t)], 1)
+    off = 0.5 * (uv0 + uv1) + side * 0.4 * gap * np.array([-(uv1 - uv0)[1], (uv1 - uv0)[0]]) / gap
+    (curve,) = other_guide_curves(cam, GUIDES_MM, uv0[None], [gap + 3.0 + PAIR_TOL_PX])
+    assume(np.min(np.linalg.norm(curve - off, axis=1)) > PAIR_TOL_PX + 0.5)
+    pts = np.stack([uv0, uv1, off])
+    assert encloses_only_partners(cam, GUIDES_MM, uv0, ring, pts[:2], np.zeros(2, bool))
+    assert not encloses_only_partners(cam, GUIDES_MM, uv0, ring, pts, np.zeros(3, bool))
+    assert encloses_only_partners(cam, GUIDES_MM, uv0, ring, pts, np.array([False, False, True]))
 
 
 @settings(max_examples=60, deadline=None)
@@ -137,7 +159,8 @@ def _srgb(s):
 
 
 def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shininess=800.0,
-                 tissue=(0.75, 0.32, 0.25), noise=0.01, median=0.45, texture=None, gamma=None, after_curve=False):
+                 tissue=(0.75, 0.32, 0.25), noise=0.01, median=0.45, texture=None, gamma=None, after_curve=False,
+                 azimuth_deg=90.0):
     """An 8-bit sRGB frame of a plane under the two guides: Blinn-Phong lobes (exponent
     ``shininess``) and Lambertian shading in the ``tissue`` colour, each guide's light falling
     off with the inverse square, exposed so that the shading's median is ``median`` of full scale
@@ -145,8 +168,9 @@ def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shini
     albedo varies by that relative standard deviation over a Gaussian correlation of that many
     pixels (the diffuse light only: the film's lobe is the illuminant's colour); ``gamma``: a
     power-law curve in place of sRGB's. Returns the frame, K, the normal and the true highlights'
-    pixels (one per guide). ``after_curve``: the noise added to the curve's output instead."""
-    n = _normal(tilt_deg, 90.0)
+    pixels (one per guide). ``after_curve``: the noise added to the curve's output instead;
+    ``azimuth_deg``: the tilt's direction (90: across the guides' baseline)."""
+    n = _normal(tilt_deg, azimuth_deg)
     h = depth_mm * np.cos(np.radians(tilt_deg))  # the plane n . X = -h, depth_mm on the axis
     K = np.array([[f, 0, (size - 1) / 2], [0, f, (size - 1) / 2], [0, 0, 1.0]])
     vv, uu = np.mgrid[0:size, 0:size].astype(float)

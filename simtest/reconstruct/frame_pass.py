@@ -9,12 +9,13 @@ import dataclasses
 import numpy as np
 
 from simtest.reconstruct._pixels import Roi
-from simtest.reconstruct.assemble import SpecularityEstimate, _complete, _merge_guard
+from simtest.reconstruct.assemble import SpecularityEstimate, _complete, _merge_guard, _replaced
 from simtest.reconstruct.detect import detect_specularities
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _prepared
 from simtest.reconstruct.frame_verify import _early_checks, _verified
 from simtest.reconstruct.isophotes import _candidate_drafts
+from simtest.reconstruct.rig_pairs import encloses_only_partners
 
 __all__ = ["detected", "frame_pass"]
 
@@ -63,6 +64,17 @@ def frame_pass(frame: _Frame, img: np.ndarray, r: Roi, lights, det=None, only: l
     verifier, early, fitted = _early_checks(frame, det, bps_arr, fitted, whole, verifier)
     done = _complete(_candidate_drafts(frame, det, r, bps_arr, rays, has_ray, fitted, early, others, keep,
                                        row_in_others))
+    if lights is not None and lights.has_separate_lights:
+        done = _rig_partners_not_merged(frame, done, lights, others.uv, [row_in_others[k] for k in early])
     if settings.verify and done:
         done = _verified(frame, done, verifier=verifier, lights=lights)
     return done, det, (frame, verifier)
+
+
+def _rig_partners_not_merged(frame: _Frame, done: list, lights, others_uv: np.ndarray, refused_rows: list) -> list:
+    """The estimates, each ``merged`` one whose isophote encloses only other guides' lobes where the rig puts
+    them, or peaks the colour checks refused (rows of ``others_uv``), given back its isophote's status (ok)."""
+    (refused := np.zeros(len(others_uv), bool))[[k for k in refused_rows if k >= 0]] = True
+    return [_replaced(e, status=OK, detail="") if e.status == "merged" and e.primary is not None and e.primary.closed
+            and encloses_only_partners(frame.camera, lights.positions, e.bp_px, e.primary.points_uv, others_uv, refused)
+            else e for e in done]

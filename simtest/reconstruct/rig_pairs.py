@@ -24,9 +24,10 @@ from simtest.geometry.angles import unit
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.evidence_pixels import ellipse_level
+from simtest.reconstruct.isophote import polygon_contains
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
-           "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_starts"]
+           "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_starts", "encloses_only_partners"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
 DEPTH_SAMPLES = 256
@@ -103,6 +104,43 @@ def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float =
             pts.append(_resampled(uv, step_px, bp, rad))
         out.append(np.concatenate(pts))
     return out
+
+
+def encloses_only_partners(camera, positions_mm, bp_uv, polygon_uv, points_uv, excused) -> bool:
+    """Whether a closed isophote encloses, besides its own BP, only other guides' lobes where the rig puts
+    them (within :data:`PAIR_TOL_PX` of the BP's curves) or points ``excused``: a highlight of another
+    guide of the rig is expected, not a merge.
+
+    Parameters
+    ----------
+    camera : CameraModel
+    positions_mm : array_like of shape (G, 3)
+        The guides' positions, camera frame, mm.
+    bp_uv : array_like of shape (2,)
+        The isophote's BP (u, v), px.
+    polygon_uv : ndarray of shape (P, 2)
+        The closed isophote (u, v), px, without a repeated end point.
+    points_uv : ndarray of shape (K, 2)
+        The frame's other candidates' BPs (the own one may be among them).
+    excused : ndarray of bool, shape (K,)
+        The points that are no highlight's BP (peaks the colour checks refused).
+
+    Returns
+    -------
+    bool
+    """
+    bp = np.asarray(bp_uv, np.float64)
+    pts = np.asarray(points_uv, np.float64).reshape(-1, 2)
+    inside = np.asarray(polygon_contains(polygon_uv, pts), bool) & ~np.asarray(excused, bool)
+    inside &= np.hypot(*(pts - bp).T) > 1e-9
+    if not inside.any():
+        return True
+    reach = float(np.hypot(*(np.asarray(polygon_uv) - bp).T).max()) + PAIR_TOL_PX
+    (curve,) = other_guide_curves(camera, positions_mm, bp[None], [reach])
+    if not len(curve):
+        return False
+    gaps = np.linalg.norm(pts[inside][:, None] - curve[None], axis=-1).min(axis=1)
+    return bool((gaps <= PAIR_TOL_PX).all())
 
 
 def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[int, int, float], ...]]:
