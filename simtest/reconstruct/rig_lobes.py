@@ -8,10 +8,10 @@ fit models every lobe on one plane: it needs no ellipse, nor the part of the reg
 Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point ``X_s = L' h / (-n . L')`` with
 ``L' = L - 2 (n . L + h) n`` (without a distance, the h that centres them on the clipped tops, :func:`_on_the_tops`).
 When two or more guides' points lie in the candidate's bright region (above :data:`FUSED_LOBE_LEVEL` of the BP's
-height, holding the BP), at least :data:`~simtest.decisions.PAIR_TOL_PX` apart, none another candidate's BP and, if
-clipped, one within ``PAIR_TOL_PX`` of its top (a weaker lobe may not clip), it gives one row per guide: BP at its
-specular point, status ``ok``, the joint fit's normal. A rejected candidate is fitted for this only where the rig's
-curve runs in its region.
+height, holding the BP), at least :data:`~simtest.decisions.PAIR_TOL_PX` apart and, if clipped, one within
+``PAIR_TOL_PX`` of its top (a weaker lobe may not clip), it gives one row per guide whose point is no light-aware
+ok candidate's BP (that highlight has its own row): BP at its specular point, status ``ok``, the joint fit's
+normal. A rejected candidate is fitted for this only where the rig's curve runs in its region.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops where
 the rig pairs them gives one row per top at its centroid, with the plane the two fix as a stereo
@@ -155,8 +155,10 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
     gaps = np.linalg.norm(p[:, None] - p[None], axis=-1)[np.triu_indices(len(p), 1)]
     if gaps.min() < PAIR_TOL_PX:
         return None  # lobes the image does not tell apart: one highlight, the candidate's row
-    if len(others) and (np.linalg.norm(others[:, None] - p[None], axis=-1) < PAIR_TOL_PX).any():
-        return None  # a guide's highlight that is an ok candidate of its own already has its row
+    # a guide's highlight that is an ok candidate of its own already has its row: the rows of the others
+    free = (np.linalg.norm(np.reshape(others, (-1, 2))[:, None] - p[None], axis=-1) >= PAIR_TOL_PX).all(axis=0)
+    if not free.any():
+        return None
     if est.saturated:
         # no point within PAIR_TOL_PX of the tops: it fitted something else (a weaker lobe may not clip)
         off = cv2.distanceTransform(np.pad((~_tops(gray, region)).astype(np.uint8), 1, constant_values=1),
@@ -167,7 +169,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
         if pair is not None and not all(_on_a_top(p, pair[1], [t], region[1:]) for t in pair[2]):
             return None  # two tops the rig pairs, the plane's points not one on each: it misplaced them
     rows = []
-    for j, uv in zip(k.tolist(), p):
+    for j, uv in zip(k[free].tolist(), p[free]):
         rows.append(dataclasses.replace(
             est, bp_px=uv.copy(), status="ok",
             bp_ray=-np.asarray(_model(camera).pixel_to_ray(uv[None]), np.float64)[0],
