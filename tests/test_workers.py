@@ -67,3 +67,28 @@ def test_a_pool_stopped_when_idle_ends_and_its_worker_is_gone():
     procs = list(pool._processes.values())
     assert stop_workers(pool) == len(procs) > 0
     assert not any(p.is_alive() for p in procs)
+
+
+def _worker_view(_):
+    import os
+
+    from threadpoolctl import threadpool_info
+    return (sorted(m for m in ("simtest.harness.runner", "mitsuba", "drjit") if m in sys.modules),
+            max((i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"), default=1),
+            os.getcwd(), list(sys.path))
+
+
+def test_a_clean_workers_modules_threads_and_paths(tmp_path, monkeypatch):
+    # a worker of clean_context() is forked from a server that imported the workers' modules (not
+    # the renderer) with one BLAS thread, and it still sees the caller's working directory and
+    # sys.path as they are when the pool starts (a spawned worker's contract)
+    from simtest._workers import clean_context
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path / "mine"))
+    pool = new_pool(1, mp_context=clean_context())
+    try:
+        mods, blas, cwd, path = pool.submit(_worker_view, 0).result(timeout=120)
+    finally:
+        pool.shutdown()
+    assert mods == ["simtest.harness.runner"] and blas == 1
+    assert cwd == str(tmp_path) and path[0] == str(tmp_path / "mine")
