@@ -348,7 +348,9 @@ PALENESS_MAX = decision(
     "PALENESS_MAX", 0.6, "peak chroma over the tissue's chroma",
     "A dielectric reflects the illuminant's colour (the dichromatic model, Shafer 1985, "
     "doi:10.1002/col.5080100409), so a specular peak is paler than the tissue around it:  adding white s to a tissue colour of largest channel M scales its chroma by "
-    "M / (M + s), at most 0.6 once s >= 2 M / 3.", basis="physics", stage=_V)
+    "M / (M + s), at most 0.6 once s >= 2 M / 3. Under a rig of separate guides a weaker white lobe "
+    "with its rig twin (another guide's lobe where the rig puts it: rig_pairs.rig_twins) is exempt.",
+    basis="physics", stage=_V)
 WHITE_CHROMA = decision(
     "WHITE_CHROMA", 0.08, "chroma 1 - min(RGB) / max(RGB)",
     "A peak whose chroma is below this is near-white, whatever the tissue's colour: 8-bit "

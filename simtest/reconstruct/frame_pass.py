@@ -15,7 +15,7 @@ from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _prepared
 from simtest.reconstruct.frame_verify import _early_checks, _verified
 from simtest.reconstruct.isophotes import _candidate_drafts
-from simtest.reconstruct.rig_pairs import encloses_only_partners
+from simtest.reconstruct.rig_pairs import bp_wander_px, encloses_only_partners
 
 __all__ = ["detected", "frame_pass"]
 
@@ -61,20 +61,31 @@ def frame_pass(frame: _Frame, img: np.ndarray, r: Roi, lights, det=None, only: l
     rays = frame.bp_rays(bps_arr)
     has_ray = np.isfinite(rays).all(axis=1)
     fitted = has_ray & np.array([c.status == OK for c in det.candidates], dtype=bool)
-    verifier, early, fitted = _early_checks(frame, det, bps_arr, fitted, whole, verifier)
+    verifier, early, fitted = _early_checks(frame, det, bps_arr, fitted, whole, verifier, lights)
     done = _complete(_candidate_drafts(frame, det, r, bps_arr, rays, has_ray, fitted, early, others, keep,
                                        row_in_others))
     if lights is not None and lights.has_separate_lights:
-        done = _rig_partners_not_merged(frame, done, lights, others.uv, [row_in_others[k] for k in early])
+        done = _rig_partners_not_merged(frame, done, lights, others.uv, [row_in_others[k] for k in early],
+                                        row_in_others)
     if settings.verify and done:
         done = _verified(frame, done, verifier=verifier, lights=lights)
     return done, det, (frame, verifier)
 
 
-def _rig_partners_not_merged(frame: _Frame, done: list, lights, others_uv: np.ndarray, refused_rows: list) -> list:
+def _rig_partners_not_merged(frame: _Frame, done: list, lights, others_uv: np.ndarray, refused_rows: list,
+                             row_in_others: np.ndarray) -> list:
     """The estimates, each ``merged`` one whose isophote encloses only other guides' lobes where the rig puts
-    them, or peaks the colour checks refused (rows of ``others_uv``), given back its isophote's status (ok)."""
+    them, or peaks the colour checks refused (rows of ``others_uv``), given back its isophote's status (ok).
+    ``row_in_others``: each estimate's row of ``others_uv`` (-1: none); a BP with a closed isophote may lie
+    its :func:`~simtest.reconstruct.rig_pairs.bp_wander_px` further from the rig's curve."""
+    if not any(e.status == "merged" for e in done):
+        return done
     (refused := np.zeros(len(others_uv), bool))[[k for k in refused_rows if k >= 0]] = True
+    wander = np.zeros(len(others_uv))
+    for e, row in zip(done, row_in_others):
+        if row >= 0 and e.primary is not None and e.primary.closed and e.primary.points_uv is not None:
+            wander[row] = bp_wander_px(e.bp_px, e.primary.points_uv)
     return [_replaced(e, status=OK, detail="") if e.status == "merged" and e.primary is not None and e.primary.closed
-            and encloses_only_partners(frame.camera, lights.positions, e.bp_px, e.primary.points_uv, others_uv, refused)
+            and encloses_only_partners(frame.camera, lights.positions, e.bp_px, e.primary.points_uv, others_uv,
+                                       refused, wander)
             else e for e in done]

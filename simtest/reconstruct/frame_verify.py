@@ -13,14 +13,17 @@ from simtest.reconstruct.assemble import SpecularityEstimate, _replaced
 from simtest.reconstruct.detect import background_side_px, luma, noise_sigma
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _is_gray
+from simtest.reconstruct.rig_pairs import rig_twins
 from simtest.reconstruct.verify import assess, bp_checks, confidence, seed_opening, verdict
 
 
 def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
-                  whole: bool, verifier: tuple | None = None) -> tuple[tuple | None, dict, np.ndarray]:
+                  whole: bool, verifier: tuple | None = None, lights=None) -> tuple[tuple | None, dict, np.ndarray]:
     """``(verifier, early, fitted)``: the verifier's inputs (None without ``verify``; given: an earlier
     pass's of the same frame), the BP checks' ``k -> detail`` of the ``fitted`` candidates that fail
     (``not_specular``, neither contoured nor fitted), and ``fitted`` without them (cleared in place).
+    Under a rig of separate ``lights`` a weak lobe with a twin passes (:meth:`Evidence.with_twins`), each
+    BP's wander taken from its detected region's box.
     """
     if not frame.settings.verify:
         return None, {}, fitted
@@ -33,10 +36,21 @@ def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
         seed_opening(gray_v, frame.background_px or background_side_px(gray_v.shape), det.half)
     fk = np.flatnonzero(fitted)
     sat = np.array([det.candidates[k].saturated for k in fk.tolist()], dtype=bool)
+    twins = None
+    if lights is not None and lights.has_separate_lights and len(fk) > 1:
+        cands = [det.candidates[k] for k in fk.tolist()]
+        # the BP's distance from its region's box centre (both in the detection's coordinates)
+        wander = np.array([np.hypot(c.bp_uv[0] - (c.bbox.col0 + c.bbox.col1 - 1) / 2,
+                                    c.bp_uv[1] - (c.bbox.row0 + c.bbox.row1 - 1) / 2) for c in cands])
+        bps_f = bps_arr[fk]
+
+        def twins(pool, which):
+            return rig_twins(frame.camera, lights.positions, bps_f, pool, wander, which)
     early = {k: d for k, d in zip(fk.tolist(), bp_checks(frame.img, gray_v, bps_arr[fk], sat,
                                                          full_scale=frame.full_scale, noise=noise_v,
                                                          grey=grey_v, response=frame.response,
-                                                         background_px=frame.background_px)) if d is not None}
+                                                         background_px=frame.background_px, twins=twins))
+             if d is not None}
     fitted[list(early)] = False
     return verifier, early, fitted
 

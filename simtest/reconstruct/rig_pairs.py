@@ -14,6 +14,7 @@ on the curve so the verifier can leave it out of the surround.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from simtest._lazy import require
@@ -27,7 +28,8 @@ from simtest.reconstruct.evidence_pixels import ellipse_level
 from simtest.reconstruct.isophote import polygon_contains
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
-           "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_starts", "encloses_only_partners"]
+           "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_starts", "encloses_only_partners",
+           "bp_wander_px", "rig_twins"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
 DEPTH_SAMPLES = 256
@@ -106,7 +108,7 @@ def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float =
     return out
 
 
-def encloses_only_partners(camera, positions_mm, bp_uv, polygon_uv, points_uv, excused) -> bool:
+def encloses_only_partners(camera, positions_mm, bp_uv, polygon_uv, points_uv, excused, wander_px=None) -> bool:
     """Whether a closed isophote encloses, besides its own BP, only other guides' lobes where the rig puts
     them (within :data:`PAIR_TOL_PX` of the BP's curves) or points ``excused``: a highlight of another
     guide of the rig is expected, not a merge.
@@ -124,6 +126,9 @@ def encloses_only_partners(camera, positions_mm, bp_uv, polygon_uv, points_uv, e
         The frame's other candidates' BPs (the own one may be among them).
     excused : ndarray of bool, shape (K,)
         The points that are no highlight's BP (peaks the colour checks refused).
+    wander_px : ndarray of shape (K,), optional
+        Each point's :func:`bp_wander_px` (0 where it has no isophote), px; the tolerance of a point is
+        :data:`PAIR_TOL_PX` plus its wander and the polygon's own (None: no wander).
 
     Returns
     -------
@@ -135,12 +140,76 @@ def encloses_only_partners(camera, positions_mm, bp_uv, polygon_uv, points_uv, e
     inside &= np.hypot(*(pts - bp).T) > 1e-9
     if not inside.any():
         return True
-    reach = float(np.hypot(*(np.asarray(polygon_uv) - bp).T).max()) + PAIR_TOL_PX
+    wander = np.zeros(len(pts)) if wander_px is None else np.asarray(wander_px, np.float64).reshape(-1)
+    tol = PAIR_TOL_PX + bp_wander_px(bp, polygon_uv) + wander[inside]
+    reach = float(np.hypot(*(np.asarray(polygon_uv) - bp).T).max()) + float(tol.max())
     (curve,) = other_guide_curves(camera, positions_mm, bp[None], [reach])
     if not len(curve):
         return False
     gaps = np.linalg.norm(pts[inside][:, None] - curve[None], axis=-1).min(axis=1)
-    return bool((gaps <= PAIR_TOL_PX).all())
+    return bool((gaps <= tol).all())
+
+
+def rig_twins(camera, positions_mm, bps_uv, pool, wander_px, which) -> np.ndarray:
+    """Which BPs of ``which`` have a twin: another BP of ``pool`` where the rig puts another guide's
+    highlight, within :data:`PAIR_TOL_PX` plus both BPs' wander of the BP's curves.
+
+    A weak lobe on tissue could be a pale patch of texture; a second one where the rig's geometry puts
+    another guide's highlight of the same patch is what texture does not repeat.
+
+    Parameters
+    ----------
+    camera : CameraModel
+    positions_mm : array_like of shape (G, 3)
+        The guides' positions, camera frame, mm.
+    bps_uv : array_like of shape (N, 2)
+        The BPs (u, v), px.
+    pool : ndarray of bool, shape (N,)
+        The BPs that may be a twin (white peaks that pass the height check).
+    wander_px : ndarray of shape (N,)
+        Each BP's wander from its lobe's centre (:func:`bp_wander_px`, 0 where unknown), px.
+    which : ndarray of bool, shape (N,)
+        The BPs asked about (the others are False).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
+    pool = np.asarray(pool, bool).reshape(-1)
+    wander = np.asarray(wander_px, np.float64).reshape(-1)
+    out = np.zeros(len(bps), bool)
+    ask = np.flatnonzero(np.asarray(which, bool).reshape(-1))
+    if not len(ask) or not pool.any():
+        return out
+    cand, w_cand = bps[pool], wander[pool]
+    reach = np.linalg.norm(bps[ask][:, None] - cand[None], axis=-1).max(axis=1) + PAIR_TOL_PX + w_cand.max() + \
+        wander[ask]
+    tree = require("scipy.spatial").cKDTree
+    for k, curve in zip(ask, other_guide_curves(camera, positions_mm, bps[ask], reach)):
+        others = np.linalg.norm(cand - bps[k], axis=1) > PAIR_TOL_PX
+        if len(curve) and others.any():
+            gaps = tree(curve).query(cand[others])[0]
+            out[k] = bool((gaps <= PAIR_TOL_PX + wander[k] + w_cand[others]).any())
+    return out
+
+
+def bp_wander_px(bp_uv, polygon_uv) -> float:
+    """How far a BP may lie from its guide's specular point beyond :data:`PAIR_TOL_PX`: its distance
+    from the area centroid of its closed isophote ``polygon_uv`` (P, 2) (u, v) px.
+
+    A lobe's isophotes surround its centre; its brightest pixel wanders from it where the top is flat
+    (noise picks the maximum among pixels within a few sigmas of the peak) and where the diffuse shading
+    or another lobe's tail slopes under it (the maximum moves up the slope by the slope times the lobe's
+    squared width over its height). The isophote, a level well below the top, moves much less, so the
+    BP's distance from its centroid measures that wander on each lobe, whatever its width. 0 for a
+    degenerate polygon.
+    """
+    poly = np.asarray(polygon_uv, np.float32).reshape(-1, 1, 2)
+    m = cv2.moments(poly) if len(poly) >= 3 else {"m00": 0.0}
+    if not abs(m["m00"]) > 0:
+        return 0.0
+    return float(np.hypot(m["m10"] / m["m00"] - float(bp_uv[0]), m["m01"] / m["m00"] - float(bp_uv[1])))
 
 
 def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[int, int, float], ...]]:

@@ -10,6 +10,9 @@ A candidate earns ``ok`` when it passes, in order (numbers and their reasons: :m
   :data:`WHITE_SHARE_MIN` of its linear-light excess over the background is white;
 - **a peak above the diffuse level** (``not_specular``): top-hat height at least :data:`SIGNIFICANCE_MIN`
   noise sigmas and :data:`CONTRAST_MIN` of the room the sensor leaves, unless clipped in every channel;
+- under a rig of separate guides, a white peak of that height with a **rig twin** (another such peak where
+  the rig puts another guide's highlight, :func:`~simtest.reconstruct.rig_pairs.rig_twins`) is exempt
+  from the paleness bar (:meth:`Evidence.with_twins`);
 - **isolated** (``cluster``): no other specular peak of at least :data:`NEIGHBOUR_REL` of its height
   beyond :data:`OWN_RADIUS_PX` of the BP (another guide's excepted, :mod:`simtest.reconstruct.rig_pairs`),
   and at most :data:`SURROUND_FRACTION_MAX` of its surround lit by other light;
@@ -46,7 +49,7 @@ from simtest.reconstruct.detect import background_side_px, noise_sigma
 from simtest.reconstruct.detect_pixels import _level_bin, noise_level_table
 from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
-from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, other_guide_curves, other_lobe_centres
+from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, bp_wander_px, other_guide_curves, other_lobe_centres, rig_twins
 
 __all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN",
            "PANEL_STD_REL", "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
@@ -89,6 +92,9 @@ class Evidence:
         The peak's white share (:func:`~simtest.reconstruct.evidence_pixels.white_share`).
     surround_white : ndarray, optional
         As ``surround``, white light only (None on a grey frame).
+    twin : ndarray of bool, optional
+        A white peak that passes the height check lies where the rig puts another guide's highlight
+        (:func:`~simtest.reconstruct.rig_pairs.rig_twins`): the paleness bar is waived.
     """
 
     chroma_peak: np.ndarray
@@ -106,6 +112,7 @@ class Evidence:
     noise_bg: np.ndarray | None = None
     white_share: np.ndarray | None = None
     surround_white: np.ndarray | None = None
+    twin: np.ndarray | None = None
 
     @property
     def paleness(self) -> np.ndarray:
@@ -114,8 +121,27 @@ class Evidence:
 
     @property
     def specular_colour(self) -> np.ndarray:
-        """The colour check (:func:`_specular_colour`) at each BP."""
-        return _specular_colour(self.chroma_peak, self.chroma_tissue, self.white_share)
+        """The colour check (:func:`_specular_colour`) at each BP; a twin needs only the white share."""
+        colour = _specular_colour(self.chroma_peak, self.chroma_tissue, self.white_share)
+        return colour if self.twin is None else colour | (self.twin & self.white)
+
+    @property
+    def white(self) -> np.ndarray:
+        """At least :data:`WHITE_SHARE_MIN` of the peak's light above the tissue is white (all on a grey frame)."""
+        return np.ones(len(self.height), bool) if self.white_share is None else self.white_share >= WHITE_SHARE_MIN
+
+    @property
+    def tall(self) -> np.ndarray:
+        """The height check: clipped, or :data:`SIGNIFICANCE_MIN` and :data:`CONTRAST_MIN`."""
+        clipped = np.zeros(len(self.height), bool) if self.clipped is None else np.asarray(self.clipped, bool)
+        return clipped | ((self.significance >= SIGNIFICANCE_MIN) & (self.contrast >= CONTRAST_MIN))
+
+    def with_twins(self, twins) -> "Evidence":
+        """This evidence with ``twin`` set where ``twins(pool, which)`` (bool (N,)) finds one for the peaks
+        refused for paleness alone (``which``), among the white peaks that pass the height check (``pool``)."""
+        pool = self.white & self.tall
+        which = pool & ~replace(self, twin=None).specular_colour
+        return replace(self, twin=twins(pool, which) if which.any() else np.zeros(len(pool), bool))
 
     @property
     def significance(self) -> np.ndarray:
@@ -404,7 +430,7 @@ def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, 
 
 def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
               full_scale: float, noise: float, grey: bool = False, response=None,
-              background_px: int | None = None) -> list[str | None]:
+              background_px: int | None = None, twins=None) -> list[str | None]:
     """The checks of :func:`verdict` that read only a candidate's BP (colour and height), before any fit.
 
     Parameters
@@ -417,6 +443,8 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
         The BP is on a clipped plateau (the height check is skipped).
     background_px : int, optional
         Side of the background opening's square, px; default :func:`background_side_px` of ``gray``.
+    twins : callable, optional
+        ``twins(pool, which)`` as for :meth:`Evidence.with_twins` (under a rig of separate lights).
 
     Returns
     -------
@@ -436,6 +464,8 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
                         panels=False,
                         response=response)
     ev = replace(ev, clipped=np.asarray(clipped, bool).reshape(-1))
+    if twins is not None:
+        ev = ev.with_twins(twins)
     checks = verdict(ev, np.full(n, np.nan), np.zeros(n, bool))
     return [detail if status == "not_specular" else None for status, detail in checks]
 
@@ -537,8 +567,12 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     # the surround, for the candidates that pass every check before it; the others' share counts as 1
     surround = np.where(np.isfinite(reach), 1.0, np.nan)
     white = None
-    passed = (np.isfinite(reach) & (ev.panel_fraction <= PANEL_FRACTION_MAX) & ev.specular_colour
-              & (clipped | ((ev.significance >= SIGNIFICANCE_MIN) & (ev.contrast >= CONTRAST_MIN)))
+    ev = replace(ev, clipped=clipped)
+    if expected is not None:  # a weak lobe whose twin lies where the rig puts another guide's
+        wander = np.array([bp_wander_px(e.bp_px, p.points_uv) if p is not None and p.closed
+                           and p.points_uv is not None else 0.0 for e, p in zip(ests, prims)])
+        ev = ev.with_twins(lambda pool, which: rig_twins(camera, lights.positions, bps, pool, wander, which))
+    passed = (np.isfinite(reach) & (ev.panel_fraction <= PANEL_FRACTION_MAX) & ev.specular_colour & ev.tall
               & (ev.neighbours == 0))
     if expected is not None:  # the other guides' lobes, where the rig puts them
         lit = ev.background + SURROUND_REL * ev.height
@@ -555,7 +589,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
                                                                     full_scale=float(full_scale), response=response)
         else:
             surround[passed] = px.surround_fractions(*args)
-    return replace(ev, clipped=clipped, minor_px=minor, surround=surround, surround_white=white), res, inside
+    return replace(ev, minor_px=minor, surround=surround, surround_white=white), res, inside
 
 
 def confidence_features(ev: Evidence, residual_rel: np.ndarray) -> np.ndarray:
@@ -632,8 +666,7 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray, only=
     out: list = [None] * n
     # Python floats (their formatting is several times numpy scalars'), read once per array
     pal, sig, con = ev.paleness.tolist(), ev.significance.tolist(), ev.contrast.tolist()
-    colour = ev.specular_colour.tolist()
-    clipped = [False] * n if ev.clipped is None else np.asarray(ev.clipped, bool).tolist()
+    colour, tall = ev.specular_colour.tolist(), ev.tall.tolist()
     minor = [math.nan] * n if ev.minor_px is None else np.asarray(ev.minor_px, np.float64).tolist()
     sur = ev.surround if ev.surround_white is None else ev.surround_white
     surround = [math.nan] * n if sur is None else np.asarray(sur, np.float64).tolist()
@@ -652,7 +685,7 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray, only=
         elif not colour[k]:
             out[k] = ("not_specular", f"peak chroma {cpeak[k]:.2f} is {pal[k]:.2f} of the tissue's {ctissue[k]:.2f} "
                                       f"(> {PALENESS_MAX})")
-        elif not clipped[k] and (sig[k] < SIGNIFICANCE_MIN or con[k] < CONTRAST_MIN):
+        elif not tall[k]:
             out[k] = ("not_specular", f"height {height[k]:.3g} is {sig[k]:.1f} noise sigma and {con[k]:.2f} of the "
                                       f"background (need {SIGNIFICANCE_MIN:g} and {CONTRAST_MIN:g})")
         elif neighbours[k] > 0:
