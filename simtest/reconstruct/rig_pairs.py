@@ -9,7 +9,8 @@ point at depth ``d``, ``X = d r``, the normal is ``n = unit(unit(-X) + unit(L_i 
 with the mirror image ``L'_j = L_j - 2 (n . L_j + h) n``. Sweeping ``d`` over :data:`DEPTH_MIN_MM`
 to :data:`DEPTH_MAX_MM` draws, per ordered pair of guides, a curve in the image; a peak within
 :data:`PAIR_TOL_PX` of it is another guide's highlight. :func:`other_lobe_centres` finds that lobe
-on the curve so the verifier can leave it out of the surround.
+on the curve so the verifier can leave it out of the surround. The merge rule and :func:`rig_twins` (a
+pair vouching for a weak lobe's colour) add each BP's :func:`bp_wander_px` to the tolerance.
 """
 
 from __future__ import annotations
