@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _procs import alive, cmdline, descendants
 from test_dataset_format import _cfg, _files, _make, standin_sample
 from typer.testing import CliRunner
 
@@ -132,41 +133,17 @@ _SCRIPT = textwrap.dedent("""
 """)
 
 
-def _children(pid: int) -> list[int]:
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                out.append(int(d.name))
-    return out
-
-
 def _pool_processes(pid: int) -> tuple[list[int], list[int]]:
     """The workers of ``pid``'s pool (spawned, or forked by a fork server) and its fork servers."""
     workers, servers = [], []
-    for c in _children(pid):
-        try:
-            cmd = Path(f"/proc/{c}/cmdline").read_bytes()
-        except OSError:
-            continue
+    for c in sorted(descendants(pid, depth=1)):
+        cmd = cmdline(c)
         if b"spawn_main" in cmd:
             workers.append(c)
         elif b"forkserver" in cmd:
             servers.append(c)
-            workers += _children(c)
+            workers += sorted(descendants(c, depth=1))
     return workers, servers
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -190,9 +167,9 @@ def test_killing_generate_leaves_no_worker_running(tmp_path, sig):
         rc = proc.wait(timeout=15)
         assert rc == (130 if sig == signal.SIGTERM else -signal.SIGKILL)
         deadline = time.monotonic() + 5
-        while time.monotonic() < deadline and any(_alive(w) for w in workers + servers):
+        while time.monotonic() < deadline and any(alive(w) for w in workers + servers):
             time.sleep(0.05)
-        assert not [w for w in workers + servers if _alive(w)], "workers outlived their parent"
+        assert not [w for w in workers + servers if alive(w)], "workers outlived their parent"
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
+from _procs import alive, cmdline, descendants
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")]
@@ -29,47 +30,9 @@ GONE_WITHIN_S = 5.0
 START_S = 300.0
 
 
-def _ppid_and_state(pid: int) -> tuple[int, str] | None:
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    fields = stat[stat.rindex(")") + 2:].split()
-    return int(fields[1]), fields[0]
-
-
-def _descendants(pid: int) -> set[int]:
-    by_parent: dict[int, list[int]] = {}
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            info = _ppid_and_state(int(d.name))
-            if info is not None:
-                by_parent.setdefault(info[0], []).append(int(d.name))
-    out, todo = set(), [pid]
-    while todo:
-        for c in by_parent.get(todo.pop(), []):
-            if c not in out:
-                out.add(c)
-                todo.append(c)
-    return out
-
-
-def _alive(pid: int) -> bool:
-    info = _ppid_and_state(pid)
-    return info is not None and info[1] != "Z"
-
-
 def _workers(pid: int) -> set[int]:
     """The command's worker processes (not multiprocessing's resource tracker)."""
-    out = set()
-    for c in _descendants(pid):
-        try:
-            cmd = Path(f"/proc/{c}/cmdline").read_bytes()
-        except OSError:
-            continue
-        if b"resource_tracker" not in cmd:
-            out.add(c)
-    return out
+    return {c for c in descendants(pid) if b"resource_tracker" not in cmdline(c)}
 
 
 def _interrupt(args: list[str], sig: int, cwd: Path, *, group: bool = False) -> None:
@@ -87,16 +50,16 @@ def _interrupt(args: list[str], sig: int, cwd: Path, *, group: bool = False) -> 
             time.sleep(0.2)
         time.sleep(1.0)  # the workers now hold tasks
         assert p.poll() is None, "the command ended before the signal: give it more work"
-        seen = _descendants(p.pid)
+        seen = descendants(p.pid)
         if group:  # Ctrl-C in a terminal: the whole process group gets SIGINT
             os.killpg(p.pid, sig)
         else:
             p.send_signal(sig)
         code = p.wait(timeout=60)
         deadline = time.monotonic() + GONE_WITHIN_S
-        while any(_alive(c) for c in seen) and time.monotonic() < deadline:
+        while any(alive(c) for c in seen) and time.monotonic() < deadline:
             time.sleep(0.1)
-        left = [c for c in seen if _alive(c)]
+        left = [c for c in seen if alive(c)]
         text = err.read_text()
         assert code == 130, text
         assert "Traceback" not in text and "leaked" not in text, text
@@ -106,7 +69,7 @@ def _interrupt(args: list[str], sig: int, cwd: Path, *, group: bool = False) -> 
         assert left == [], f"processes left {GONE_WITHIN_S} s after the signal: {left}"
     finally:
         for c in seen | {p.pid}:
-            if _alive(c):
+            if alive(c):
                 os.kill(c, signal.SIGKILL)
         p.wait(timeout=10)
 
