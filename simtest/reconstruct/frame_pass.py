@@ -15,7 +15,7 @@ from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _prepared
 from simtest.reconstruct.frame_verify import _early_checks, _verified
 from simtest.reconstruct.isophotes import _candidate_drafts
-from simtest.reconstruct.rig_pairs import bp_wander_px, encloses_only_partners
+from simtest.reconstruct.rig_pairs import encloses_only_partners, estimate_wander_px
 
 __all__ = ["detected", "frame_pass"]
 
@@ -77,14 +77,14 @@ def _rig_partners_not_merged(frame: _Frame, done: list, lights, others_uv: np.nd
     """The estimates, each ``merged`` one whose isophote encloses only other guides' lobes where the rig puts
     them, or peaks the colour checks refused (rows of ``others_uv``), given back its isophote's status (ok).
     ``row_in_others``: each estimate's row of ``others_uv`` (-1: none); a BP with a closed isophote may lie
-    its :func:`~simtest.reconstruct.rig_pairs.bp_wander_px` further from the rig's curve."""
+    its :func:`~simtest.reconstruct.rig_pairs.estimate_wander_px` further from the rig's curve."""
     if not any(e.status == "merged" for e in done):
         return done
     (refused := np.zeros(len(others_uv), bool))[[k for k in refused_rows if k >= 0]] = True
     wander = np.zeros(len(others_uv))
     for e, row in zip(done, row_in_others):
-        if row >= 0 and e.primary is not None and e.primary.closed and e.primary.points_uv is not None:
-            wander[row] = bp_wander_px(e.bp_px, e.primary.points_uv)
+        if row >= 0:
+            wander[row] = estimate_wander_px(e)
     return [_replaced(e, status=OK, detail="") if e.status == "merged" and e.primary is not None and e.primary.closed
             and encloses_only_partners(frame.camera, lights.positions, e.bp_px, e.primary.points_uv, others_uv,
                                        refused, wander)

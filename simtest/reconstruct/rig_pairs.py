@@ -30,7 +30,7 @@ from simtest.reconstruct.isophote import polygon_contains
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
            "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_starts", "encloses_only_partners",
-           "bp_wander_px", "rig_twins"]
+           "bp_wander_px", "estimate_wander_px", "rig_twins"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
 DEPTH_SAMPLES = 256
@@ -145,10 +145,7 @@ def encloses_only_partners(camera, positions_mm, bp_uv, polygon_uv, points_uv, e
     tol = PAIR_TOL_PX + bp_wander_px(bp, polygon_uv) + wander[inside]
     reach = float(np.hypot(*(np.asarray(polygon_uv) - bp).T).max()) + float(tol.max())
     (curve,) = other_guide_curves(camera, positions_mm, bp[None], [reach])
-    if not len(curve):
-        return False
-    gaps = np.linalg.norm(pts[inside][:, None] - curve[None], axis=-1).min(axis=1)
-    return bool((gaps <= tol).all())
+    return bool(len(curve)) and bool((_gaps_to(curve, pts[inside]) <= tol).all())
 
 
 def rig_twins(camera, positions_mm, bps_uv, pool, wander_px, which) -> np.ndarray:
@@ -186,13 +183,22 @@ def rig_twins(camera, positions_mm, bps_uv, pool, wander_px, which) -> np.ndarra
     cand, w_cand = bps[pool], wander[pool]
     reach = np.linalg.norm(bps[ask][:, None] - cand[None], axis=-1).max(axis=1) + PAIR_TOL_PX + w_cand.max() + \
         wander[ask]
-    tree = require("scipy.spatial").cKDTree
     for k, curve in zip(ask, other_guide_curves(camera, positions_mm, bps[ask], reach)):
         others = np.linalg.norm(cand - bps[k], axis=1) > PAIR_TOL_PX
         if len(curve) and others.any():
-            gaps = tree(curve).query(cand[others])[0]
-            out[k] = bool((gaps <= PAIR_TOL_PX + wander[k] + w_cand[others]).any())
+            out[k] = bool((_gaps_to(curve, cand[others]) <= PAIR_TOL_PX + wander[k] + w_cand[others]).any())
     return out
+
+
+def _gaps_to(curve_uv: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
+    """Each point's distance (K,) to the nearest of a curve's samples (M, 2), px (a k-d tree of the samples)."""
+    return require("scipy.spatial").cKDTree(curve_uv).query(points_uv)[0]
+
+
+def estimate_wander_px(est) -> float:
+    """:func:`bp_wander_px` of an estimate's BP from its closed primary isophote; 0 without one."""
+    p = est.primary
+    return bp_wander_px(est.bp_px, p.points_uv) if p is not None and p.closed and p.points_uv is not None else 0.0
 
 
 def bp_wander_px(bp_uv, polygon_uv) -> float:

@@ -49,7 +49,8 @@ from simtest.reconstruct.detect import background_side_px, noise_sigma
 from simtest.reconstruct.detect_pixels import _level_bin, noise_level_table
 from simtest.reconstruct.fit import fit_ellipses
 from simtest.reconstruct.jpeg import quantisation_sigma
-from simtest.reconstruct.rig_pairs import PAIR_TOL_PX, bp_wander_px, other_guide_curves, other_lobe_centres, rig_twins
+from simtest.reconstruct.rig_pairs import (PAIR_TOL_PX, estimate_wander_px, other_guide_curves, other_lobe_centres,
+                                          rig_twins)
 
 __all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN",
            "PANEL_STD_REL", "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
@@ -136,11 +137,11 @@ class Evidence:
         clipped = np.zeros(len(self.height), bool) if self.clipped is None else np.asarray(self.clipped, bool)
         return clipped | ((self.significance >= SIGNIFICANCE_MIN) & (self.contrast >= CONTRAST_MIN))
 
-    def with_twins(self, twins) -> "Evidence":
+    def with_twins(self, twins) -> Evidence:
         """This evidence with ``twin`` set where ``twins(pool, which)`` (bool (N,)) finds one for the peaks
         refused for paleness alone (``which``), among the white peaks that pass the height check (``pool``)."""
         pool = self.white & self.tall
-        which = pool & ~replace(self, twin=None).specular_colour
+        which = pool & ~_specular_colour(self.chroma_peak, self.chroma_tissue, self.white_share)
         return replace(self, twin=twins(pool, which) if which.any() else np.zeros(len(pool), bool))
 
     @property
@@ -569,8 +570,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     white = None
     ev = replace(ev, clipped=clipped)
     if expected is not None:  # a weak lobe whose twin lies where the rig puts another guide's
-        wander = np.array([bp_wander_px(e.bp_px, p.points_uv) if p is not None and p.closed
-                           and p.points_uv is not None else 0.0 for e, p in zip(ests, prims)])
+        wander = np.array([estimate_wander_px(e) for e in ests])
         ev = ev.with_twins(lambda pool, which: rig_twins(camera, lights.positions, bps, pool, wander, which))
     passed = (np.isfinite(reach) & (ev.panel_fraction <= PANEL_FRACTION_MAX) & ev.specular_colour & ev.tall
               & (ev.neighbours == 0))
