@@ -350,6 +350,26 @@ def test_jpeg_compressed_flat_mucosa_keeps_each_guides_clipped_highlight_whole(t
     assert max(e for _, e in rows) <= MEDIAN_MAX_DEG, rows
 
 
+def test_clipped_lobes_the_frames_edges_cut_get_their_guides_normals(tmp_path):
+    # two separate clipped lobes (f 300 px, shininess 375) in a frame cropped so that the left one's
+    # specular point lies 15 px inside the left edge and the right one's 19 px inside the right edge:
+    # each detected region reaches the frame's edge (touches_border), though each clipped top lies
+    # inside. Both got the BP ray; each lobe's plane fit, which reads the pixels the frame holds, puts
+    # its own guide's specular point alone on its top (and the other's on the other lobe) and is now
+    # that guide's row
+    img, K, n, truth = sensor_plane(25.0, 16.0, 7, spec=4.0, shininess=375.0, azimuth_deg=180.0, size=420,
+                                    f=300.0, tissue=(0.75, 0.42, 0.36), median=0.3)
+    c0 = int(np.rint(truth[0][0])) - 15
+    K = K.copy()
+    K[0, 2] -= c0  # the crop moves the principal point
+    truth = [np.array([t[0] - c0, t[1]]) for t in truth]
+    _write(tmp_path, np.ascontiguousarray(img[:, c0:]), K)
+    specs = _reconstruct(tmp_path)
+    rows = _score(specs, truth, n)
+    assert all(s == "ok" and e is not None and e <= MEDIAN_MAX_DEG for s, e in rows), rows
+    assert all("cut by the frame's edge" in s["detail"] for s in specs if s["status"] == "ok"), specs
+
+
 @pytest.mark.parametrize("tilt, depth, spec", [(36.0, 20.0, 4.0), (42.0, 14.0, 8.0)])
 def test_fused_lobes_whose_shoulder_reaches_the_frames_edge_get_both_guides_normals(tmp_path, tilt, depth, spec):
     # broad lobes (shininess 200) of mucosa tilted towards the top edge: the specular points lie 43

@@ -11,7 +11,8 @@ When two or more guides' points lie in the candidate's bright region (above :dat
 height, holding the BP), at least :data:`~simtest.decisions.PAIR_TOL_PX` apart and, if clipped, one within
 ``PAIR_TOL_PX`` of its top (a weaker lobe may not clip), it gives one row per guide whose point is no light-aware
 ok candidate's BP (that highlight has its own row): BP at its specular point, status ``ok``, the joint fit's
-normal. A rejected candidate is fitted for this only where the rig's curve runs in its region.
+normal. A rejected candidate is fitted for this only where the rig's curve runs in its region. A clipped lobe the
+frame's edge cuts (``touches_border``) gives its guide's row where its fit, ok with its distance, puts that point alone.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops where
 the rig pairs them gives one row per top at its centroid, with the plane the two fix as a stereo
@@ -149,11 +150,12 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
     else:
         return None
     k = np.flatnonzero(_inside(region, pts))
-    if len(k) < 2:
+    cut = est.status == "touches_border" and fit.ok and fit.distance_mm is not None
+    if len(k) < (1 if cut else 2):
         return None
     p = pts[k]
     gaps = np.linalg.norm(p[:, None] - p[None], axis=-1)[np.triu_indices(len(p), 1)]
-    if gaps.min() < PAIR_TOL_PX:
+    if len(p) > 1 and gaps.min() < PAIR_TOL_PX:
         return None  # lobes the image does not tell apart: one highlight, the candidate's row
     # a guide's highlight that is an ok candidate of its own already has its row: the rows of the others
     free = (np.linalg.norm(np.reshape(others, (-1, 2))[:, None] - p[None], axis=-1) >= PAIR_TOL_PX).all(axis=0)
@@ -168,15 +170,12 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
             return None
         if pair is not None and not all(_on_a_top(p, pair[1], [t], region[1:]) for t in pair[2]):
             return None  # two tops the rig pairs, the plane's points not one on each: it misplaced them
-    rows = []
-    for j, uv in zip(k[free].tolist(), p[free]):
-        rows.append(dataclasses.replace(
-            est, bp_px=uv.copy(), status="ok",
-            bp_ray=-np.asarray(_model(camera).pixel_to_ray(uv[None]), np.float64)[0],
-            detail=(f"guide {j + 1}'s lobe of {len(k)} fused into one highlight ({est.status}"
-                    f"{': ' + est.detail if est.detail else ''}); BP at its specular point, normal "
-                    "from their joint photometric fit")))
-    return rows
+    why = f"({est.status}{': ' + est.detail if est.detail else ''}); BP at its specular point, normal from"
+    return [dataclasses.replace(
+        est, bp_px=uv.copy(), status="ok", bp_ray=-np.asarray(_model(camera).pixel_to_ray(uv[None]), np.float64)[0],
+        detail=(f"guide {j + 1}'s lobe of {len(k)} fused into one highlight {why} their joint photometric fit"
+                if len(k) > 1 else f"guide {j + 1}'s lobe, cut by the frame's edge {why} its photometric fit"))
+        for j, uv in zip(k[free].tolist(), p[free])]
 
 
 def _tops_pair(gray: np.ndarray, region, camera, rig):
