@@ -337,6 +337,25 @@ def test_a_weak_pale_lobe_beside_the_other_guides_gets_a_light_aware_normal(tmp_
     assert all(s == "ok" and e is not None and e <= MEDIAN_MAX_DEG for s, e in rows), rows
 
 
+def test_a_weak_lobe_whose_isophote_the_other_deforms_is_the_row_its_partners_fit_places(tmp_path):
+    # the weak pale lobes above, exposed brighter and less noisy: guide 1's isophote, bent by guide 2's
+    # tail, misses the ellipse (bad_fit, isophote residual 0.33 of its semi-minor axis; the BP ray).
+    # Guide 2's ok plane fit puts guide 1's specular point on that candidate's BP, and the candidate's
+    # own plane fit puts guide 2's back on its BP: that pair makes it guide 1's row
+    img, K, n, truth = sensor_plane(6.9, 23.2, 6, spec=1.26, shininess=301.0, size=900, f=520.0, median=0.2625,
+                                    tissue=(0.75, 0.42, 0.36), azimuth_deg=144.3, profile=1.0, noise=0.005)
+    _write(tmp_path, img, K, profile=1.0)
+    specs = _reconstruct(tmp_path)
+    status, err = _score(specs, truth, n)[0]
+    assert status == "ok" and err is not None and err <= MEDIAN_MAX_DEG, (status, err)
+    assert any("where guide 2's fit puts it" in s["detail"] for s in specs if s["status"] == "ok"), specs
+    # every ok row is one of the two highlights (guide 2's BP lies up to 5 px off its specular point:
+    # its wander on this broad top), each with the plane's normal
+    for s in (s for s in specs if s["status"] == "ok"):
+        assert min(np.hypot(*(np.asarray(s["bp_px"]) - uv)) for uv in truth) <= 2 * MATCH_PX, s
+        assert np.degrees(np.arccos(min(1.0, abs(np.dot(s["normal"], n))))) <= MEDIAN_MAX_DEG, s
+
+
 @pytest.mark.parametrize("quality", [60, 90])
 def test_jpeg_compressed_flat_mucosa_keeps_each_guides_clipped_highlight_whole(tmp_path, quality):
     # JPEG leaves 2 to 28 % of a clipped top at 255 in every channel (CLIP_MARGIN_REL): counted

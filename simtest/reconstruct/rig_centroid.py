@@ -34,8 +34,8 @@ from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.verify import specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
-from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, splittable,
-                                           guide_specular_points, split_fused_lobes)
+from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, guide_specular_points,
+                                           partner_rows, split_fused_lobes, splittable)
 
 __all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
 
@@ -171,5 +171,5 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
         split = [i for i, w in zip(split, white) if w or estimates[i].saturated]
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
                               plane_only=split, **kwargs)
-    return rig_centroid(image, split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray),
-                        camera, rig, gray=gray)
+    split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray)
+    return rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs), camera, rig, gray=gray)

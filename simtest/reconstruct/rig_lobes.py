@@ -14,6 +14,10 @@ ok candidate's BP (that highlight has its own row): BP at its specular point, st
 normal. A rejected candidate is fitted for this only where the rig's curve runs in its region. A clipped lobe the
 frame's edge cuts (``touches_border``) gives its guide's row where its fit, ok with its distance, puts that point alone.
 
+Partner. An ok row whose plane fit (ok, with its distance) puts its own guide's point on its BP and another guide's
+on a rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander) makes that candidate the other guide's
+row where the candidate's own plane fit puts both points back: a weak lobe whose isophote the other's tail deforms.
+
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops where
 the rig pairs them gives one row per top at its centroid, with the plane the two fix as a stereo
 pair (``rig_pair``, :func:`~simtest.reconstruct.rig_pairs.pair_plane`).
@@ -26,16 +30,18 @@ import dataclasses
 import cv2
 import numpy as np
 
+from simtest._threads import one_thread_each
 from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH,
                                PAIR_TOL_PX, TOPS_PLACE_SIGMA_PX)
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import luma
-from simtest.reconstruct.light_fits import _offset_rig
+from simtest.reconstruct.light_fits import NOT_FITTED, PLANE_ONLY, _offset_rig, light_aware_estimates
 from simtest.reconstruct.lightaware import LightAwareEstimate
-from simtest.reconstruct.rig_pairs import (_model, _specular_points, guide_specular_points, other_guide_curves,
-                                           pair_plane)
+from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wander_px, guide_specular_points,
+                                           other_guide_curves, pair_plane)
 
-__all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "split_fused_lobes", "splittable"]
+__all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "partner_rows", "split_fused_lobes",
+           "splittable"]
 
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring, :func:`splittable`).
 SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut", "touches_border")
@@ -344,3 +350,77 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
     near = [bool((np.linalg.norm(sp - np.asarray(e.bp_px, np.float64), axis=1) < PAIR_TOL_PX).any()) for e in out]
     return [e for e, at in zip(out, near)
             if not at or id(e) in split_rows or (e.ok and e.recommended.normal_from != "bp_ray")]
+
+
+
+def _plane(fit) -> bool:
+    """Whether a light-aware fit is ok with its plane's distance."""
+    return fit is not None and fit.ok and fit.distance_mm is not None
+
+
+def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv) -> int | None:
+    """The rejected candidate (not ok, fitted when rejected ones are) whose BP lies within ``PAIR_TOL_PX`` plus its
+    wander of ``uv``, the nearest; None where an ok row's BP lies within ``PAIR_TOL_PX`` of it."""
+    gaps = np.nan_to_num(np.linalg.norm(bps - np.asarray(uv, np.float64), axis=1), nan=np.inf)
+    ok = np.array([e.ok for e in out], bool)
+    free = ~ok & np.array([e.status not in NOT_FITTED for e in out], bool) & (gaps <= PAIR_TOL_PX + wander)
+    if (gaps[ok] < PAIR_TOL_PX).any() or not free.any():
+        return None
+    return int(np.flatnonzero(free)[np.argmin(gaps[free])])
+
+
+def partner_rows(image, estimates, camera, rig, fit_kwargs: dict) -> list:
+    """The estimates with each rejected candidate where an ok row's plane fit puts another guide's highlight
+    made that guide's row, where its own plane fit puts the row's highlight back (module docstring).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        The frame the estimates were made on.
+    estimates : sequence of SpecularityEstimate
+        With their light-aware fits (after :func:`split_fused_lobes`).
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K or a camera model.
+    rig : LightRig or None
+        The scope's lights (None, or every light at the camera centre: returned unchanged).
+    fit_kwargs : dict
+        The frame's arguments of :func:`~simtest.reconstruct.light_fits.light_aware_estimates`.
+
+    Returns
+    -------
+    list of SpecularityEstimate
+        In the order of ``estimates``; a partner's row in its candidate's place.
+    """
+    out = list(estimates)
+    if not _offset_rig(rig):
+        return out
+    bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
+    wander = np.array([estimate_wander_px(e) for e in out])
+    for a, est in enumerate(estimates):
+        fit = (est.light_aware or {}).get("photometric_fit")
+        if not (est.ok and est.recommended.normal_from == "photometric_fit" and _plane(fit)):
+            continue
+        pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+        own = np.nan_to_num(np.linalg.norm(pts - bps[a], axis=1), nan=np.inf)
+        i = int(np.argmin(own))
+        if not own[i] <= PAIR_TOL_PX + wander[a]:
+            continue  # its fit does not place its own highlight
+        for j in range(len(pts)):
+            c = None if j == i else _partner(out, bps, wander, pts[j])
+            if c is None:
+                continue
+            with one_thread_each():  # as with_light_aware's fits: the same bits on any number of workers
+                fits = light_aware_estimates(image, out[c], camera, rig, **(fit_kwargs | PLANE_ONLY))
+            pf = fits.get("photometric_fit")
+            q = guide_specular_points(camera, rig, pf.normal, pf.distance_mm) if _plane(pf) else None
+            if q is None or not (np.linalg.norm(q[j] - bps[c]) <= PAIR_TOL_PX + wander[c]
+                                 and np.linalg.norm(q[i] - bps[a]) <= PAIR_TOL_PX + wander[a]):
+                continue
+            out[c] = dataclasses.replace(
+                out[c], bp_px=q[j].copy(), status="ok", light_aware=fits,
+                bp_ray=-np.asarray(_model(camera).pixel_to_ray(q[j][None]), np.float64)[0],
+                detail=(f"guide {j + 1}'s highlight where guide {i + 1}'s fit puts it ({out[c].status}"
+                        f"{': ' + out[c].detail if out[c].detail else ''}); BP at its specular point, normal from "
+                        f"its photometric fit, which puts guide {i + 1}'s back"))
+            bps[c] = q[j]
+    return out
