@@ -156,7 +156,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
     else:
         return None
     k = np.flatnonzero(_inside(region, pts))
-    cut = est.status == "touches_border" and fit.ok and fit.distance_mm is not None
+    cut = est.status == "touches_border" and _plane(fit)
     if len(k) < (1 if cut else 2):
         return None
     p = pts[k]
@@ -350,7 +350,6 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
     near = [bool((np.linalg.norm(sp - np.asarray(e.bp_px, np.float64), axis=1) < PAIR_TOL_PX).any()) for e in out]
     return [e for e, at in zip(out, near)
             if not at or id(e) in split_rows or (e.ok and e.recommended.normal_from != "bp_ray")]
-
 
 
 def _plane(fit) -> bool:
