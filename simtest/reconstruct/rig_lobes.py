@@ -176,12 +176,18 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
             return None
         if pair is not None and not all(_on_a_top(p, pair[1], [t], region[1:]) for t in pair[2]):
             return None  # two tops the rig pairs, the plane's points not one on each: it misplaced them
-    why = f"({est.status}{': ' + est.detail if est.detail else ''}); BP at its specular point, normal from"
-    return [dataclasses.replace(
-        est, bp_px=uv.copy(), status="ok", bp_ray=-np.asarray(_model(camera).pixel_to_ray(uv[None]), np.float64)[0],
-        detail=(f"guide {j + 1}'s lobe of {len(k)} fused into one highlight {why} their joint photometric fit"
-                if len(k) > 1 else f"guide {j + 1}'s lobe, cut by the frame's edge {why} its photometric fit"))
-        for j, uv in zip(k[free].tolist(), p[free])]
+    fused = len(k) > 1
+    return [_row(est, camera, uv, f"guide {j + 1}'s lobe of {len(k)} fused into one highlight" if fused
+                 else f"guide {j + 1}'s lobe, cut by the frame's edge",
+                 f"BP at its specular point, normal from {'their joint' if fused else 'its'} photometric fit")
+            for j, uv in zip(k[free].tolist(), p[free])]
+
+
+def _row(est, camera, uv: np.ndarray, what: str, how: str, **fields):
+    """``est`` as one guide's ok row: BP ``uv`` and its ray, detail ``what (status: detail); how``, ``fields``."""
+    was = f"{est.status}{': ' + est.detail if est.detail else ''}"
+    return dataclasses.replace(est, bp_px=uv.copy(), status="ok", detail=f"{what} ({was}); {how}",
+                               bp_ray=-np.asarray(_model(camera).pixel_to_ray(uv[None]), np.float64)[0], **fields)
 
 
 def _tops_pair(gray: np.ndarray, region, camera, rig):
@@ -257,12 +263,10 @@ def _pair_rows(est, camera, rig, region, pair, others: np.ndarray, split: list |
     if split is not None and _at_each_centre(np.array([r.bp_px for r in split]), pts):
         return None  # the candidate's fit places the pair: its split stands
     ests, guides = _pair_estimates(camera, rig, pts, plane), plane[2]
-    return [dataclasses.replace(
-        est, bp_px=pts[k].copy(), status="ok", light_aware=dict(est.light_aware or {}, rig_pair=ests[k]),
-        bp_ray=-np.asarray(_model(camera).pixel_to_ray(pts[k][None]), np.float64)[0],
-        detail=(f"guide {guides[k] + 1}'s clipped top of 2 fused into one highlight ({est.status}"
-                f"{': ' + est.detail if est.detail else ''}); BP at its centroid, normal from the "
-                "pair's geometry (rig_pair)")) for k in np.argsort(guides)] if ests else None
+    return [_row(est, camera, pts[k], f"guide {guides[k] + 1}'s clipped top of 2 fused into one highlight",
+                 "BP at its centroid, normal from the pair's geometry (rig_pair)",
+                 light_aware=dict(est.light_aware or {}, rig_pair=ests[k]))
+            for k in np.argsort(guides)] if ests else None
 
 
 def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
@@ -415,11 +419,8 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict) -> list:
             if q is None or not (np.linalg.norm(q[j] - bps[c]) <= PAIR_TOL_PX + wander[c]
                                  and np.linalg.norm(q[i] - bps[a]) <= PAIR_TOL_PX + wander[a]):
                 continue
-            out[c] = dataclasses.replace(
-                out[c], bp_px=q[j].copy(), status="ok", light_aware=fits,
-                bp_ray=-np.asarray(_model(camera).pixel_to_ray(q[j][None]), np.float64)[0],
-                detail=(f"guide {j + 1}'s highlight where guide {i + 1}'s fit puts it ({out[c].status}"
-                        f"{': ' + out[c].detail if out[c].detail else ''}); BP at its specular point, normal from "
-                        f"its photometric fit, which puts guide {i + 1}'s back"))
+            out[c] = _row(out[c], camera, q[j], f"guide {j + 1}'s highlight where guide {i + 1}'s fit puts it",
+                          f"BP at its specular point, normal from its photometric fit, which puts guide {i + 1}'s back",
+                          light_aware=fits)
             bps[c] = q[j]
     return out
