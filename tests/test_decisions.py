@@ -47,6 +47,7 @@ NOT_DECISIONS = {
                                                  "_PROFILE_NFEV", "_PROFILE_TOL", "_PROFILE_STEP",
                                                  "_PROFILE_WIDE_START")},
     "lightaware.model._CB_FLOOR": _SOLVER, "lightaware.model._FRESNEL_STEP": _SOLVER,
+    "lightaware.model.BLINN_PER_PHONG": "a geometric identity: the mirror angle is twice the half vector's",
     "lightaware.patch._VALLEY_STEP": _SOLVER,
     "lightaware.plane.RETRY_START_DEPTHS": _SOLVER,
     "lightaware.plane_solve.REFINE_MAX_PIXELS": "a cost bound: a larger ROI's refinement takes a sub-grid, "

@@ -85,8 +85,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         is darkest, clipped pixels censored, with the rig's diffuse shading.
     diffuse : bool or None
         The rig's Lambertian shading in the photometric model (None: with a ``response``).
-    lobe : {"phong", "ggx", "auto"} or None
-        The photometric fit's lobe (``"auto"``: GGX where Phong misfits and GGX does not); None:
+    lobe : {"phong", "ggx", "blinn", "auto"} or None
+        The photometric fit's lobe (``"auto"``: GGX where Phong misfits, Blinn where GGX does too); None:
         "auto" on three channels, else Phong, and GGX beside it where its lobe is broad.
     floor_refit : bool
         Refit without the pixels whose model lies within a few noise sigmas of an integer image's 0.

@@ -72,7 +72,7 @@ class LightAwareEstimate:
         The BP ray's expected error next to this fit, degrees (half the angle the mean light subtends
         at the specular point); set by :func:`simtest.reconstruct.light_fits.light_aware_estimates`.
     lobe : str or None
-        :func:`photometric_fit`: the lobe of the model kept, ``"phong"`` or ``"ggx"``.
+        :func:`photometric_fit`: the lobe of the model kept, ``"phong"``, ``"ggx"`` or ``"blinn"``.
     n_residuals : int
         :func:`photometric_fit`: the number of pixels fitted; 0 elsewhere.
     light_normal_sigmas_deg : ndarray of shape (J,) or None

@@ -1,6 +1,6 @@
 """The forward model of a highlight lit by a rig (package docstring, "Model").
 
-Viewing rays, the rig's arrays, cos beta of each light on a plane, the rig's Phong and GGX images
+Viewing rays, the rig's arrays, cos beta of each light on a plane, the rig's Phong, Blinn and GGX images
 and their gradients in (a, b, log h, log n), the diffuse shading, the specular point's depth and
 the ROI's pixel grid the fits sample.
 """
@@ -128,13 +128,29 @@ def _normal_derivs(p, n0, e1, e2):
 _CB_FLOOR = 1e-200
 
 
-def _rig_geometry(dT, rl, n, h, rig_arr) -> list:
+#: Blinn's exponent per Phong exponent of the same lobe near its peak: the mirror angle is twice the
+#: half-vector's, ``cos(2 theta)^n ~ exp(-2 n theta^2) ~ cos(theta)^(4 n)`` (Blinn 1977, SIGGRAPH 11(2)).
+BLINN_PER_PHONG = 4.0
+
+
+def _blinn_cos(delta, sl, ir, c):
+    """``n . H`` of one light, ``H = unit(l + v)``: ``n . l = c / r``, ``n . v = delta``, ``l . v = sl / r``
+    (:func:`_terms`' pieces); 0 where the light is behind the plane."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nh = (c * ir + delta) / np.sqrt(np.maximum(2.0 * (1.0 + sl * ir), 1e-300))
+    return np.where(c > 0, nh, 0.0)
+
+
+def _rig_geometry(dT, rl, n, h, rig_arr, blinn: bool = False) -> list:
     """Per light, the roughness-free pieces of :func:`_rig_value`:
-    ``(cb, cbp, lcb, pos, delta, s, sl, ir, c, cp, raw, f, p)`` (f falloff, p profile; None where absent)."""
+    ``(cb, cbp, lcb, pos, delta, s, sl, ir, c, cp, raw, f, p)`` (f falloff, p profile; None where absent).
+    ``blinn``: ``cb`` is the half vector's ``n . H`` (:func:`_blinn_cos`), not the mirror direction's."""
     L, w, inv_sq, m = rig_arr
     geo = []
     for j in range(len(w)):
         cb, delta, s, sl, ir, c, _ = _terms(dT, n, h, L[j], (rl[0][j], rl[1][j]), ds=geo[0][4:6] if geo else None)
+        if blinn:
+            cb = _blinn_cos(delta, sl, ir, c)
         pos, hir = cb > _CB_FLOOR, h * ir
         cbp = np.where(pos, cb, 1.0)
         raw = (s * dT[2] - L[j, 2]) * ir if m[j] > 0 else None
@@ -144,14 +160,15 @@ def _rig_geometry(dT, rl, n, h, rig_arr) -> list:
     return geo
 
 
-def _rig_value(dT, rl, n, h, rig_arr, rough, geo=None):
+def _rig_value(dT, rl, n, h, rig_arr, rough, geo=None, blinn: bool = False):
     """``S = sum_j w_j max(0, cb_j)^n f_j p_j`` (N,) and the per-light pieces :func:`_rig_grad` needs. ``dT`` (3, N)
-    unit rays transposed, ``rl`` the rig's :func:`_ray_light`; ``geo``: :func:`_rig_geometry` if at hand."""
+    unit rays transposed, ``rl`` the rig's :func:`_ray_light`; ``geo``: :func:`_rig_geometry` if at hand;
+    ``blinn``: Blinn's lobe ``(n . H)^n`` (:func:`_blinn_cos`), else Phong's."""
     w = rig_arr[1]
     S = np.zeros(dT.shape[1])
     parts = []
     for j, (cb, cbp, lcb, pos, delta, s, sl, ir, c, cp, raw, f, p) in enumerate(
-            _rig_geometry(dT, rl, n, h, rig_arr) if geo is None else geo):
+            _rig_geometry(dT, rl, n, h, rig_arr, blinn) if geo is None else geo):
         arg = rough * lcb  # 0 below exp(-708) = 3e-308: exp's slow path for a subnormal takes 4x
         val = np.zeros_like(arg)
         np.exp(arg, out=val, where=pos & (arg > -708.0))
@@ -166,24 +183,30 @@ def _rig_value(dT, rl, n, h, rig_arr, rough, geo=None):
     return S, parts
 
 
-def _rig_grad(dT, parts, dns, h, rig_arr, rough):
+def _rig_grad(dT, parts, dns, h, rig_arr, rough, blinn: bool = False):
     """``dS`` (4, N) of :func:`_rig_value` in (a, b, log h, log n). Per light
-    ``d log val = n d cb / cb + d log f + d log p``, with the derivatives of :func:`_terms`."""
+    ``d log val = n d cb / cb + d log f + d log p``, with the derivatives of :func:`_terms`; ``blinn``: of
+    :func:`_blinn_cos`, ``d log(n . H) = (dc / r + c d(1/r) + d delta) / (c / r + delta) - d(sl / r) / (2 (1 + sl / r))``
+    (``d(1/r) = -(sl / r^3) ds``)."""
     L, w, inv_sq, m = rig_arr
     P = np.array(dns) @ dT
     dS = np.zeros((4, dT.shape[1]))
     for j, (cb, cbp, lcb, val, delta, s, sl, ir, c, cp, *_) in enumerate(parts):
         slr = sl * ir  # dr / ds
-        k = (rough * ir) / cbp  # n / (r cb): d log(lobe) = k (2 (dc delta + c d delta) - q ds)
-        C = -k * (1.0 + cb * slr)  # coefficient of ds
+        if blinn:  # d log(lobe) = kc dc + kd d delta + C ds (val is 0 where cb is)
+            a_ = np.where(val > 0, c * ir + delta, 1.0)
+            kc, kd = (rough * ir) / a_, rough / a_
+            C = -rough * ir * ((c * ir * slr) / a_ + 0.5 * (1.0 - slr))
+        else:
+            k = (rough * ir) / cbp  # n / (r cb): d log(lobe) = k (2 (dc delta + c d delta) - q ds)
+            kc, kd, C = (2.0 * delta) * k, (2.0 * c) * k, -k * (1.0 + cb * slr)  # C: coefficient of ds
         if inv_sq[j]:
             C -= (2.0 * slr) * ir
         if cp is not None:
             C += m[j] * ((dT[2] / cp - slr) * ir)
-        kv = k * val
-        A = (2.0 * delta) * kv  # coefficient of dc, times val
+        A = kc * val  # coefficient of dc, times val
         Cvs = C * val * s
-        Bv = Cvs / delta - (2.0 * c) * kv  # coefficient of P, times val
+        Bv = Cvs / delta - kd * val  # coefficient of P (d delta = -P), times val
         dS[0] += A * (dns[0] @ L[j]) + P[0] * Bv
         dS[1] += A * (dns[1] @ L[j]) + P[1] * Bv
         dS[2] += A * h + Cvs + (2.0 * val if inv_sq[j] else 0.0)

@@ -19,7 +19,7 @@ from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.colour import per_channel, specular_image
-from simtest.reconstruct.lightaware.model import _normal_derivs, phong_of_ggx_alpha
+from simtest.reconstruct.lightaware.model import _normal_derivs
 from simtest.reconstruct.lightaware.plane_model import PlaneModel
 from simtest.reconstruct.lightaware.plane_sigma import PlaneVerdict
 from simtest.reconstruct.lightaware.plane_solve import solve_plane, start_planes
@@ -34,7 +34,7 @@ RETRY_START_DEPTHS = 4
 PROJECTIONS = ("auto", "border", "least_fluctuation", "darkest_channel")
 
 #: The values of ``photometric_fit``'s ``lobe``.
-LOBES = ("phong", "ggx", "auto")
+LOBES = ("phong", "ggx", "blinn", "auto")
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -97,10 +97,11 @@ class FitSettings:
     two_channels : bool or None
         RGB pixels clipped in one channel of negative weight: True, valued from their two other
         channels; False, left out; None: both fits, chosen by :func:`_two_channel_choice`.
-    lobe : {"phong", "ggx", "auto"}
+    lobe : {"phong", "ggx", "blinn", "auto"}
         Phong's ``max(0, cos beta)^n`` (eq. 1), a GGX lobe under a dielectric film
-        (:func:`~simtest.reconstruct.lightaware.model._rig_value_ggx`), or both, chosen by
-        :func:`_choose_lobe`. ``roughness`` is always a Phong n.
+        (:func:`~simtest.reconstruct.lightaware.model._rig_value_ggx`), Blinn's ``max(0, n . H)^n``
+        (:func:`~simtest.reconstruct.lightaware.model._blinn_cos`), or those of the three that
+        ``photometric_fit``'s Notes try, chosen by :func:`_choose_lobe`. ``roughness`` is always a Phong n.
 
     Raises
     ------
@@ -133,7 +134,7 @@ class FitSettings:
 
     def __post_init__(self):
         if self.lobe not in LOBES:
-            raise ValueError(f"lobe: {self.lobe!r} is not one of phong, ggx, auto")
+            raise ValueError(f"lobe: {self.lobe!r} is not one of {', '.join(LOBES)}")
         if self.projection not in PROJECTIONS:
             raise ValueError(f"projection: {self.projection!r} is not one of {', '.join(PROJECTIONS)}")
 
@@ -188,14 +189,17 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
     Jacobian ``P_[S, B] (g dS)`` gives the fit and the covariance. With ``diffuse`` or censored pixels
     the linear part (with the shading column ``D(p)``) is solved on the active rows at each p.
 
-    With ``lobe="auto"`` the GGX fit runs where Phong's misfits or does not converge; kept
-    (:func:`_choose_lobe`): converged over not, passing over misfitting, then the lower
-    ``BIC = m log(RSS / m) + k log m`` [5]_; of two that misfit, Phong.
+    With ``lobe="auto"`` the GGX fit runs where Phong's misfits or does not converge, and Blinn's
+    where the better of the two leaves a curved pattern (a lobe of the half vector: its peak is
+    Phong's, its shape stretches away from the axis [6]_); kept (:func:`_choose_lobe`): converged over not, passing over misfitting,
+    then the lower ``BIC = m log(RSS / m) + k log m`` [5]_; of fits that misfit, Phong.
 
     References
     ----------
     .. [5] G. Schwarz, "Estimating the dimension of a model", Ann. Statist. 6(2), 1978.
            https://doi.org/10.1214/aos/1176344136
+    .. [6] J. F. Blinn, "Models of light reflection for computer synthesized pictures", SIGGRAPH
+           Comput. Graph. 11(2), 1977. https://doi.org/10.1145/965141.563893
     """
     s = FitSettings(**options) if settings is None else replace(settings, **options)
     if s.n_start_depths is None:
@@ -242,17 +246,27 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
     return best
 
 
+def _fits(est: LightAwareEstimate) -> bool:
+    """Whether a lobe's fit needs no other lobe: passing (or too few pixels to tell) with no curved pattern."""
+    return (est.ok or est.status in ("depth_not_observable", "too_few_points")) and est.curvature_shift_deg is None
+
+
 def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
-    """One lobe's fit, or with ``lobe="auto"`` Phong's and where it misfits GGX's too (:func:`_choose_lobe`)."""
+    """One lobe's fit, or with ``lobe="auto"`` Phong's, where it misfits GGX's, where the better of the two
+    leaves a curved pattern Blinn's too (:func:`_choose_lobe`), each from Phong's plane."""
     fit = (values, origin_uv, bp_uv, camera, rig)
     if s.lobe != "auto":
         return _fit_plane(*fit, s)
     pho = _fit_plane(*fit, replace(s, lobe="phong"))
-    if (pho.ok or pho.status in ("depth_not_observable", "too_few_points")) and pho.curvature_shift_deg is None:
+    if _fits(pho):
         return _note(pho, "phong lobe fits")
-    ggx = _fit_plane(*fit, replace(s, lobe="ggx", start_normal=pho.normal if pho.has_normal else s.start_normal,
-                                   start_roughness=pho.roughness if pho.has_normal else s.start_roughness))
-    return _choose_lobe(pho, ggx)
+    start = (dict(start_normal=pho.normal, start_roughness=pho.roughness) if pho.has_normal
+             else dict(start_normal=s.start_normal, start_roughness=s.start_roughness))
+    ggx = _fit_plane(*fit, replace(s, lobe="ggx", **start))
+    best = _choose_lobe(pho, ggx)
+    if not (best.status == "plane_misfit" or best.curvature_shift_deg is not None):
+        return best  # (a fit that runs off tells nothing of the lobe's shape)
+    return _choose_lobe(pho, ggx, _fit_plane(*fit, replace(s, lobe="blinn", **start)))
 
 
 def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
@@ -277,8 +291,7 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
     x, n0, h0, e1, e2, conv, msg, nfev = solved
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
     h_hat = float(np.exp(x[2]))
-    with np.errstate(over="ignore"):  # a fit run off to an infinite roughness: implausible below
-        rough_hat = phong_of_ggx_alpha(float(np.exp(x[3]))) if m.ggx else float(np.exp(x[3]))
+    rough_hat = m.phong_n(x[3])  # (a fit run off to an infinite roughness: implausible below)
     bad = _implausible(h_hat, h0, rough_hat, shaded=s.diffuse)
     if bad:
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev, projection=how)
@@ -290,7 +303,7 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
                   post=verdict.post)
     if colour_detail:
         est = _note(est, colour_detail)
-    est = replace(est, lobe="ggx" if m.ggx else "phong", n_residuals=int(len(m.yn)), projection=how)
+    est = replace(est, lobe=s.lobe, n_residuals=int(len(m.yn)), projection=how)
     if lower is not None and est.status in ("ok", "depth_not_observable"):
         # the shape check on the darkest channel: a curved patch is curved in every channel, and
         # the projection's residual can hide it (a JPEG frame's blocky chroma)
@@ -373,20 +386,21 @@ def _bic(est: LightAwareEstimate) -> float:
     return est.n_residuals * math.log(max(est.residual_rms, 1e-300) ** 2)
 
 
-def _choose_lobe(pho: LightAwareEstimate, ggx: LightAwareEstimate) -> LightAwareEstimate:
-    """The Phong or the GGX fit (``photometric_fit``'s Notes); its detail names the other's residual RMS."""
+def _choose_lobe(pho: LightAwareEstimate, *others: LightAwareEstimate) -> LightAwareEstimate:
+    """The Phong fit or one of the other lobes' (``photometric_fit``'s Notes); its detail names the others'
+    residual RMS."""
     def rank(e):
         failed = e.status == "not_converged" or not e.has_normal
         misfit = e.status == "plane_misfit"
-        # a curved pattern in the residual (a misfit, or curvature_shift_deg) ranks last; of two such, Phong
+        # a curved pattern in the residual (a misfit, or curvature_shift_deg) ranks last; of such, Phong
         flawed = misfit or e.curvature_shift_deg is not None
         return (failed, flawed, 0.0 if flawed and e is pho else (1.0 if flawed else _bic(e)))
 
-    best, other = (pho, ggx) if rank(pho) <= rank(ggx) else (ggx, pho)
-    if best is ggx and pho.status == "plane_misfit" and _bic(ggx) > _bic(pho):
-        # a GGX fit that passes with a larger residual than Phong's misfit is no better model
-        best, other = pho, ggx
-    why = (f"{best.lobe} lobe: residual RMS {best.residual_rms:.4g} against {other.lobe}'s "
-           f"{other.residual_rms:.4g}" if other.residual_rms is not None and best.residual_rms is not None
-           else f"{best.lobe} lobe")
+    best = min((pho, *others), key=rank)  # (a tie keeps the first: Phong)
+    if best is not pho and pho.status == "plane_misfit" and _bic(best) > _bic(pho):
+        # another lobe's fit that passes with a larger residual than Phong's misfit is no better model
+        best = pho
+    rms = [f"{e.lobe}'s {e.residual_rms:.4g}" for e in (pho, *others) if e is not best and e.residual_rms is not None]
+    why = (f"{best.lobe} lobe: residual RMS {best.residual_rms:.4g} against {', '.join(rms)}"
+           if rms and best.residual_rms is not None else f"{best.lobe} lobe")
     return _note(best, why)

@@ -7,8 +7,8 @@ import numpy as np
 
 from simtest._lazy import require
 from simtest.reconstruct.lightaware.model import (
-    _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad,
-    _rig_geometry, _rig_grad, _rig_grad_ggx, _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong,
+    BLINN_PER_PHONG, _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad, _rig_geometry,
+    _rig_grad, _rig_grad_ggx, _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong, phong_of_ggx_alpha,
 )
 from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
 
@@ -60,7 +60,7 @@ class PlaneModel:
                 raise ValueError(f"exclude: shape {ex.shape} is not the ROI's {keep.shape}")
             keep &= ~ex
         self.vals, self.keep, self.lower, self.clip_level = vals, keep, lower, clip_level
-        self.diffuse, self.ggx = s.diffuse, ggx
+        self.diffuse, self.ggx, self.blinn = s.diffuse, ggx, s.lobe == "blinn"
         self.H, self.W = vals.shape
         border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
         self.b_level = float(np.median(border))
@@ -108,6 +108,12 @@ class PlaneModel:
             proj.update(key=key, QT=QT, yt=yw - (QT @ yw) @ QT)
         return proj["QT"], proj["yt"]
 
+    def phong_n(self, log_rough: float) -> float:
+        """The Phong n of the lobe's roughness parameter ``exp(log_rough)`` (GGX's alpha, Blinn's exponent)."""
+        with np.errstate(over="ignore"):  # a fit run off to an infinite roughness
+            rough = float(np.exp(log_rough))
+        return phong_of_ggx_alpha(rough) if self.ggx else rough / BLINN_PER_PHONG if self.blinn else rough
+
     def box(self, v):
         """The mean of each pixel's sub-pixel samples (the last axis)."""
         return v if self.ss == 1 else v.reshape(*v.shape[:-1], -1, self.ss * self.ss).mean(axis=-1)
@@ -126,7 +132,7 @@ class PlaneModel:
             n, dns = _normal_derivs(p, nb, e1, e2)
             h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
             S, parts = (_rig_value_ggx(dT, rl, n, h, rig_arr, rough, parts=(parts := [])), parts) if self.ggx \
-                else _rig_value(dT, rl, n, h, rig_arr, rough)
+                else _rig_value(dT, rl, n, h, rig_arr, rough, blinn=self.blinn)
             design[:, 0], terms = box(S), None
             if self.diffuse:  # (cb, delta, s, sl, ir, c[, raw, f]) of each light, cb unused
                 terms = [(None,) + pt[:5] for pt in parts] if self.ggx else [pt[:1] + pt[4:9] + pt[10:] for pt in parts]
@@ -187,7 +193,7 @@ class PlaneModel:
         coef, active = st["coef"], st["active"]
         G = coef[0] * self.box(_rig_grad_ggx(self.dT, self.rl, st["n"], dns, st["h"], self.rig_arr, st["rough"],
                                              parts=st["parts"]) if self.ggx
-                               else _rig_grad(self.dT, st["parts"], dns, st["h"], self.rig_arr, st["rough"]))
+                               else _rig_grad(self.dT, st["parts"], dns, st["h"], self.rig_arr, st["rough"], self.blinn))
         if self.diffuse:
             G[:3] += coef[1] * self.box(_rig_diffuse_grad(self.dT, self.rl, p, nb, e1, e2, self.rig_arr,
                                                           at=(st["n"], dns, *st["terms"])))
@@ -208,7 +214,7 @@ class PlaneModel:
         if state.get("key") != key:
             n, dns = _normal_derivs(p, nb, e1, e2)
             h, rough = float(np.exp(p[2])), float(np.exp(p[3]))
-            S, parts = _rig_value(self.dT, self.rl, n, h, self.rig_arr, rough)
+            S, parts = _rig_value(self.dT, self.rl, n, h, self.rig_arr, rough, blinn=self.blinn)
             S = self.box(S)
             Sw = S if w is None else S * w
             St = Sw - (QT @ Sw) @ QT
@@ -226,7 +232,7 @@ class PlaneModel:
         second-order term (for the covariance)."""
         st = self.state
         QT = self.basis(w)[0]
-        dS = self.box(_rig_grad(self.dT, st["parts"], dns, st["h"], self.rig_arr, st["rough"]))
+        dS = self.box(_rig_grad(self.dT, st["parts"], dns, st["h"], self.rig_arr, st["rough"], self.blinn))
         if w is not None:
             dS = dS * w
         St, aa, g = st["St"], st["aa"], st["g"]
@@ -243,11 +249,11 @@ class PlaneModel:
 
 def start_roughness(m: PlaneModel, n, h, given=None) -> float:
     """The start's roughness on the plane (``n``, ``h``): ``given``, else :func:`phong_start` (for GGX
-    its alpha), cached per plane until :meth:`PlaneModel.use`."""
+    its alpha, for Blinn its exponent), cached per plane until :meth:`PlaneModel.use`."""
     key = (np.asarray(n).tobytes(), float(h), given)
     if key not in m.starts:
         rough = phong_start(m, n, h, given)
-        m.starts[key] = ggx_alpha_of_phong(rough) if m.ggx else rough
+        m.starts[key] = ggx_alpha_of_phong(rough) if m.ggx else rough * BLINN_PER_PHONG if m.blinn else rough
     return m.starts[key]
 
 

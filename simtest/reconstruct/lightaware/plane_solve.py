@@ -8,7 +8,7 @@ import numpy as np
 from simtest.decisions import FLOOR_MARGIN as _FLOOR_MARGIN, RUN_OFF_FACTOR
 from simtest.geometry.conics import plane_basis
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
-from simtest.reconstruct.lightaware.model import _mean_light, phong_of_ggx_alpha
+from simtest.reconstruct.lightaware.model import _mean_light
 from simtest.reconstruct.lightaware.plane_model import _NOT_FINITE_RESIDUAL, PlaneModel, start_roughness
 from simtest.reconstruct.lightaware.solve import _bisector_plane, _correlated, _implausible, _light_start, _solve
 
@@ -69,8 +69,7 @@ def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
     def stop(p) -> str:
         """Why LM's iterate ``p`` is past saving (an overflow is too)."""
         with np.errstate(over="ignore"):
-            rough = phong_of_ggx_alpha(float(np.exp(p[3]))) if m.ggx else float(np.exp(p[3]))
-            return _implausible(float(np.exp(p[2])), h0, rough, s.diffuse, widen=RUN_OFF_FACTOR)
+            return _implausible(float(np.exp(p[2])), h0, m.phong_n(p[3]), s.diffuse, widen=RUN_OFF_FACTOR)
 
     return _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, s.max_nfev, free,
                   lazy_jac=True, weighted=True, newton=True, stop=stop)
