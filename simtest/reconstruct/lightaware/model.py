@@ -193,20 +193,21 @@ def _rig_grad(dT, parts, dns, h, rig_arr, rough, blinn: bool = False):
     dS = np.zeros((4, dT.shape[1]))
     for j, (cb, cbp, lcb, val, delta, s, sl, ir, c, cp, *_) in enumerate(parts):
         slr = sl * ir  # dr / ds
-        if blinn:  # d log(lobe) = kc dc + kd d delta + C ds (val is 0 where cb is)
+        if blinn:  # d log(lobe) in dc, d delta and ds (val is 0 where cb is)
             a_ = np.where(val > 0, c * ir + delta, 1.0)
-            kc, kd = (rough * ir) / a_, rough / a_
-            C = -rough * ir * ((c * ir * slr) / a_ + 0.5 * (1.0 - slr))
+            A, D = ((rough * ir) / a_) * val, (rough / a_) * val  # coefficients of dc and d delta, times val
+            C = -rough * ir * ((c * ir * slr) / a_ + 0.5 * (1.0 - slr))  # coefficient of ds
         else:
             k = (rough * ir) / cbp  # n / (r cb): d log(lobe) = k (2 (dc delta + c d delta) - q ds)
-            kc, kd, C = (2.0 * delta) * k, (2.0 * c) * k, -k * (1.0 + cb * slr)  # C: coefficient of ds
+            C = -k * (1.0 + cb * slr)  # coefficient of ds
+            kv = k * val
+            A, D = (2.0 * delta) * kv, (2.0 * c) * kv  # coefficients of dc and d delta, times val
         if inv_sq[j]:
             C -= (2.0 * slr) * ir
         if cp is not None:
             C += m[j] * ((dT[2] / cp - slr) * ir)
-        A = kc * val  # coefficient of dc, times val
         Cvs = C * val * s
-        Bv = Cvs / delta - kd * val  # coefficient of P (d delta = -P), times val
+        Bv = Cvs / delta - D  # coefficient of P (d delta = -P), times val
         dS[0] += A * (dns[0] @ L[j]) + P[0] * Bv
         dS[1] += A * (dns[1] @ L[j]) + P[1] * Bv
         dS[2] += A * h + Cvs + (2.0 * val if inv_sq[j] else 0.0)
