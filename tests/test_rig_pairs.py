@@ -337,6 +337,36 @@ def test_a_weak_pale_lobe_beside_the_other_guides_gets_a_light_aware_normal(tmp_
     assert all(s == "ok" and e is not None and e <= MEDIAN_MAX_DEG for s, e in rows), rows
 
 
+def test_a_pale_lobe_rejected_as_not_specular_is_the_row_its_partners_fit_places(tmp_path):
+    # the weak pale lobes above, weaker still (spec 1.0): guide 1's lobe is not_specular (peak chroma 0.64
+    # of the tissue's), with no isophote to say how far its BP wanders; it got the BP ray (4.7 deg). Guide
+    # 2's ok plane fit puts guide 1's specular point inside that candidate's bright region, whose own
+    # plane fit puts it there too and guide 2's back on its BP: that candidate is guide 1's row
+    img, K, n, truth = sensor_plane(6.9, 23.2, 4, spec=1.0, shininess=301.0, size=900, f=520.0, median=0.2625,
+                                    tissue=(0.75, 0.42, 0.36), azimuth_deg=144.3, profile=1.0)
+    _write(tmp_path, img, K, profile=1.0)
+    specs = _reconstruct(tmp_path)
+    rows = _score(specs, truth, n)
+    assert all(s == "ok" and e is not None and e <= MEDIAN_MAX_DEG for s, e in rows), rows
+    assert any("where guide 2's fit puts it (not_specular" in s["detail"] for s in specs if s["status"] == "ok")
+
+
+def test_a_lobe_whose_isophote_the_frames_edge_cuts_gets_its_guides_row(tmp_path):
+    # broad Blinn lobes (exponent 259) of a plane tilted 33 deg towards the top edge (f 347 px): each
+    # guide's t = 0.7 isophote leaves the frame (contour_cut) and both got the BP ray (8.6, 9.1 deg).
+    # Guide 2's plane fit, ok with its distance, puts its specular point alone on its clipped top: that
+    # guide's row, as for a region the edge cuts (touches_border). Guide 1's fit misfits: no row
+    img, K, n, truth = sensor_plane(33.137, 15.22, 1, spec=1.854, shininess=258.56, size=480, f=346.7,
+                                    median=0.2625, tissue=(0.75, 0.42, 0.36), azimuth_deg=109.185, profile=1.0)
+    _write(tmp_path, img, K, profile=1.0)
+    specs = _reconstruct(tmp_path)
+    status, err = _score(specs, truth, n)[1]
+    assert status == "ok" and err is not None and err <= MEDIAN_MAX_DEG, (status, err)
+    for s in (s for s in specs if s["status"] == "ok"):  # every ok row is a highlight, with the plane's normal
+        assert min(np.hypot(*(np.asarray(s["bp_px"]) - uv)) for uv in truth) <= MATCH_PX, s
+        assert np.degrees(np.arccos(min(1.0, abs(np.dot(s["normal"], n))))) <= MEDIAN_MAX_DEG, s
+
+
 def test_a_weak_lobe_whose_isophote_the_other_deforms_is_the_row_its_partners_fit_places(tmp_path):
     # the weak pale lobes above, exposed brighter and less noisy: guide 1's isophote, bent by guide 2's
     # tail, misses the ellipse (bad_fit, isophote residual 0.33 of its semi-minor axis; the BP ray).

@@ -11,12 +11,15 @@ When two or more guides' points lie in the candidate's bright region (above :dat
 height, holding the BP), at least :data:`~simtest.decisions.PAIR_TOL_PX` apart and, if clipped, one within
 ``PAIR_TOL_PX`` of its top (a weaker lobe may not clip), it gives one row per guide whose point is no light-aware
 ok candidate's BP (that highlight has its own row): BP at its specular point, status ``ok``, the joint fit's
-normal. A rejected candidate is fitted for this only where the rig's curve runs in its region. A clipped lobe the
-frame's edge cuts (``touches_border``) gives its guide's row where its fit, ok with its distance, puts that point alone.
+normal. A rejected candidate is fitted for this only where the rig's curve runs in its region. A lobe the frame's
+edge cuts (its region, ``touches_border``, or its isophote, ``contour_cut``) gives its guide's row where its fit, ok
+with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top).
 
 Partner. An ok row whose plane fit (ok, with its distance) puts its own guide's point on its BP and another guide's
 on a rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander) makes that candidate the other guide's
 row where the candidate's own plane fit puts both points back: a weak lobe whose isophote the other's tail deforms.
+A candidate with no closed isophote to measure its BP's wander (a lobe the frame cuts; a pale lobe rejected as
+``not_specular``) is the other guide's where its bright region holds that point, its own fit's too.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops where
 the rig pairs them gives one row per top at its centroid, with the plane the two fix as a stereo
@@ -156,7 +159,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
     else:
         return None
     k = np.flatnonzero(_inside(region, pts))
-    cut = est.status == "touches_border" and _plane(fit)
+    cut = est.status in ("touches_border", "contour_cut") and _plane(fit)
     if len(k) < (1 if cut else 2):
         return None
     p = pts[k]
@@ -361,15 +364,28 @@ def _plane(fit) -> bool:
     return fit is not None and fit.ok and fit.distance_mm is not None
 
 
-def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv) -> int | None:
-    """The rejected candidate (not ok, fitted when rejected ones are) whose BP lies within ``PAIR_TOL_PX`` plus its
-    wander of ``uv``, the nearest; None where an ok row's BP lies within ``PAIR_TOL_PX`` of it."""
-    gaps = np.nan_to_num(np.linalg.norm(bps - np.asarray(uv, np.float64), axis=1), nan=np.inf)
+def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarray):
+    """``(c, region)``: the rejected candidate (not ok, fitted when rejected ones are) whose BP lies within
+    ``PAIR_TOL_PX`` plus its wander of ``uv``, the nearest (region None); else one with no closed isophote to
+    measure its wander (or rejected as ``not_specular``, a pale lobe) whose bright region (:func:`_bright_region`)
+    holds ``uv``, with that region. None where an ok row's BP lies within ``PAIR_TOL_PX`` of ``uv``, or none is."""
+    uv = np.asarray(uv, np.float64)
+    gaps = np.nan_to_num(np.linalg.norm(bps - uv, axis=1), nan=np.inf)
     ok = np.array([e.ok for e in out], bool)
-    free = ~ok & np.array([e.status not in NOT_FITTED for e in out], bool) & (gaps <= PAIR_TOL_PX + wander)
-    if (gaps[ok] < PAIR_TOL_PX).any() or not free.any():
+    fitted = np.array([e.status not in NOT_FITTED for e in out], bool)
+    free = ~ok & fitted & (gaps <= PAIR_TOL_PX + wander)
+    if (gaps[ok] < PAIR_TOL_PX).any():
         return None
-    return int(np.flatnonzero(free)[np.argmin(gaps[free])])
+    if free.any():
+        return int(np.flatnonzero(free)[np.argmin(gaps[free])]), None
+    for c in np.argsort(gaps, kind="stable"):  # (a not_specular lobe has no isophote either)
+        e, (u, v) = out[c], uv
+        if not (ok[c] or wander[c] > 0 or not (fitted[c] or e.status == "not_specular")
+                or not (e.roi.col0 <= u < e.roi.col1 and e.roi.row0 <= v < e.roi.row1)):
+            region = _bright_region(gray, e)
+            if region is not None and _inside(region, uv[None])[0]:
+                return int(c), region
+    return None
 
 
 def partner_rows(image, estimates, camera, rig, fit_kwargs: dict) -> list:
@@ -399,6 +415,7 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict) -> list:
         return out
     bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
     wander = np.array([estimate_wander_px(e) for e in out])
+    gray = None
     for a, est in enumerate(estimates):
         fit = (est.light_aware or {}).get("photometric_fit")
         if not (est.ok and est.recommended.normal_from == "photometric_fit" and _plane(fit)):
@@ -409,14 +426,17 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict) -> list:
         if not own[i] <= PAIR_TOL_PX + wander[a]:
             continue  # its fit does not place its own highlight
         for j in range(len(pts)):
-            c = None if j == i else _partner(out, bps, wander, pts[j])
-            if c is None:
+            gray = luma(np.asarray(image)) if gray is None and j != i else gray
+            found = None if j == i else _partner(out, bps, wander, pts[j], gray)
+            if found is None:
                 continue
+            c, region = found
             with one_thread_each():  # as with_light_aware's fits: the same bits on any number of workers
                 fits = light_aware_estimates(image, out[c], camera, rig, **(fit_kwargs | PLANE_ONLY))
             pf = fits.get("photometric_fit")
             q = guide_specular_points(camera, rig, pf.normal, pf.distance_mm) if _plane(pf) else None
-            if q is None or not (np.linalg.norm(q[j] - bps[c]) <= PAIR_TOL_PX + wander[c]
+            if q is None or not ((np.linalg.norm(q[j] - bps[c]) <= PAIR_TOL_PX + wander[c]
+                                  if region is None else _inside(region, q[j][None])[0])
                                  and np.linalg.norm(q[i] - bps[a]) <= PAIR_TOL_PX + wander[a]):
                 continue
             out[c] = _row(out[c], camera, q[j], f"guide {j + 1}'s highlight where guide {i + 1}'s fit puts it",
