@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import lightaware as la
-from test_rig_pairs import MATCH_PX, MEDIAN_MAX_DEG, _reconstruct, _score, _write, sensor_plane
+from test_rig_pairs import MATCH_PX, _every_guide_ok, _frame_rows, sensor_plane
 
 
 def _tilted(tilt, az):
@@ -76,10 +76,8 @@ def test_a_broad_blinn_lobe_far_off_the_axis_gets_its_guides_normals(tmp_path):
     # withdrawn as misfits, so both highlights got the BP ray (6.2 and 6.4 deg); Blinn's lobe fits
     img, K, n, truth = sensor_plane(32.79, 21.22, 1, spec=1.3, shininess=251.3, size=480, f=346.7, median=0.2625,
                                     tissue=(0.75, 0.42, 0.36), azimuth_deg=70.35, profile=1.0)
-    _write(tmp_path, img, K, profile=1.0)
-    specs = _reconstruct(tmp_path)
-    rows = _score(specs, truth, n)
-    assert all(s == "ok" and e is not None and e <= MEDIAN_MAX_DEG for s, e in rows), rows
+    specs, rows = _frame_rows(tmp_path, img, K, n, truth, profile=1.0)
+    assert _every_guide_ok(rows), rows
     for uv in truth:
         s = min(specs, key=lambda s: np.hypot(*(np.asarray(s["bp_px"]) - uv)))
         assert np.hypot(*(np.asarray(s["bp_px"]) - uv)) <= MATCH_PX
