@@ -191,8 +191,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
 
     With ``lobe="auto"`` the GGX fit runs where Phong's misfits or does not converge, and Blinn's
     where the better of the two leaves a curved pattern (a lobe of the half vector: its peak is
-    Phong's, its shape stretches away from the axis [6]_); kept (:func:`_choose_lobe`): converged over not, passing over misfitting,
-    then the lower ``BIC = m log(RSS / m) + k log m`` [5]_; of fits that misfit, Phong.
+    Phong's, its shape stretches away from the axis [6]_); kept (:func:`_choose_lobe`): converged
+    over not, passing over misfitting, then the lower ``BIC = m log(RSS / m) + k log m`` [5]_; of misfits, Phong.
 
     References
     ----------
