@@ -380,9 +380,10 @@ CONTRAST_MIN = decision(
     n="endoscope suite renders at seed 0; 180 ok estimates of 24 banner frames")
 PANEL_STD_REL = decision(
     "PANEL_STD_REL", 0.5, "image noise standard deviations (luma std over 5 x 5 px)",
-    "A flat-panel pixel varies less than the sensor could image it, so it was drawn (an overlay); "
-    "a noise-free render has no panels. Next to a channel at the sensor's ceiling every channel "
-    "must be that flat: a clipped channel has no noise, a drawn panel is flat in all of them.",
+    "A flat-panel pixel varies less than the sensor could image it, so it was drawn (an overlay); a noise-free "
+    "render has no panels. Next to a channel at the sensor's ceiling every channel must be that flat: a clipped "
+    "channel has no noise, a drawn panel is flat in all of them. A pixel at the ceiling in every channel is no "
+    "panel: the clip, not a drawing, flattened it (a white specular plateau).",
     basis="physics", stage=_V)
 PANEL_MIN_AREA = decision(
     "PANEL_MIN_AREA", 0.005, "fraction of the frame's pixels",

@@ -200,7 +200,8 @@ def _drop_clipped_whole_frame(flat, rgb, std_max, ceiling):
     every = flat.copy()
     for c in range(rgb.shape[-1]):
         every &= px.flat_mask(rgb[..., c], std_max)
-    return np.where(near != 0, every, flat).astype(np.uint8)
+    white = (rgb >= ceiling).all(axis=-1) if clip.any() else False  # the sensor's clip in every channel
+    return np.where(white, 0, np.where(near != 0, every, flat)).astype(np.uint8)
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -212,6 +213,8 @@ def test_drop_clipped_in_its_window_equals_the_whole_frame_rule(seed):
     f[rng.random((90, 130)) < 0.5] = rng.integers(0, 256, 3).astype(np.uint8)  # flat patches
     f[rng.integers(0, 90, 6)[:, None], rng.integers(0, 130, 6)] = 255
     f[:rng.integers(1, 20), :, int(rng.integers(0, 3))] = 255  # a clipped channel at the top edge
+    r, c = rng.integers(0, 70), rng.integers(0, 110)
+    f[r:r + 20, c:c + 20] = 255  # a plateau clipped in every channel: flat, yet no panel
     gray = cv2.cvtColor(f, cv2.COLOR_RGB2GRAY).astype(np.float32)
     for std_max in (0.5, 3.0, 30.0):
         flat = px.flat_mask(gray, std_max)

@@ -112,6 +112,16 @@ def test_a_glint_drawn_on_a_flat_panel_is_an_overlay():
     assert e.status == "overlay", (e.status, e.detail)
 
 
+@pytest.mark.parametrize("height, sigma", [(2000.0, 8.0), (1000.0, 6.0), (600.0, 10.0)])
+def test_a_white_lobe_whose_clipped_plateau_is_wide_is_no_overlay(height, sigma):
+    # the plateau is flat in every channel because the sensor clipped it (374 to 949 px at 255 in
+    # every channel, over the panel's least area, 200 px of this frame): a specular highlight, not a drawing
+    img = _frame([(100, 100, sigma, height, WHITE)])
+    assert (img.min(axis=-1) == 255).sum() > 0.005 * 200 * 200
+    e = _at(reconstruct(img, K), 100, 100)
+    assert e.status == "ok", (e.status, e.detail)
+
+
 def test_a_noise_free_render_has_no_panels():
     """A noise-free image is flat everywhere away from its highlights: that is no overlay."""
     img = _frame([(100, 100, 3.0, 150, WHITE)])

@@ -191,16 +191,16 @@ _HIT_JOIN_PX = 8
 
 
 def drop_clipped(flat: np.ndarray, rgb: np.ndarray, std_max, ceiling: float, full_scale: float | None = None) -> np.ndarray:
-    """The flat pixels ``flat`` less those whose 5 x 5 window holds a channel at ``ceiling`` unless every
-    channel of ``rgb`` is flat there (a clipped channel has no noise).
-    """
+    """The flat pixels ``flat`` less those at ``ceiling`` in every channel of ``rgb`` (the sensor's clip, not a
+    drawing) and those whose 5 x 5 window holds a channel there unless every channel is flat (a clip has no noise)."""
     chans = cv2.split(np.ascontiguousarray(rgb))
-    top = chans[0]
+    top, bottom = chans[0], chans[0]
     for c in chans[1:]:
-        top = cv2.max(top, c)  # the channel maximum: numpy's any over the last axis is 20x slower
+        top, bottom = cv2.max(top, c), cv2.min(bottom, c)  # numpy's reductions over the last axis: 20x slower
     clip = np.greater_equal(top, ceiling).view(np.uint8)
     if not clip.any():
         return flat
+    flat = cv2.bitwise_and(flat, np.less(bottom, ceiling).view(np.uint8))
     near = cv2.dilate(clip, np.ones((5, 5), np.uint8))
     hit = flat & near
     if not hit.any():
@@ -225,12 +225,10 @@ def panels(gray: np.ndarray, std_max, min_area: float, rgb: np.ndarray | None = 
     0/1 (next to a clipped channel, flat in every channel: :func:`drop_clipped`).
     """
     flat = flat_mask(gray, std_max, full_scale)
+    if rgb is not None and ceiling is not None and np.count_nonzero(flat) >= min_area:
+        flat = drop_clipped(flat, rgb, std_max, ceiling, full_scale)
     if np.count_nonzero(flat) < min_area:
         return np.zeros_like(flat)
-    if rgb is not None and ceiling is not None:
-        flat = drop_clipped(flat, rgb, std_max, ceiling, full_scale)
-        if np.count_nonzero(flat) < min_area:
-            return np.zeros_like(flat)
     # labels alone and their areas by counting (OpenCV's statistics cost more than its labels)
     n, lab = connected_components(flat)
     big = (np.bincount(lab.ravel(), minlength=n) >= min_area).astype(np.uint8)
