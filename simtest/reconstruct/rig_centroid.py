@@ -172,4 +172,4 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
                               plane_only=split, **kwargs)
     split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray)
-    return rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs), camera, rig, gray=gray)
+    return rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)

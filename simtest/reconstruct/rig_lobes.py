@@ -378,17 +378,18 @@ def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarra
         return None
     if free.any():
         return int(np.flatnonzero(free)[np.argmin(gaps[free])]), None
-    for c in np.argsort(gaps, kind="stable"):  # (a not_specular lobe has no isophote either)
-        e, (u, v) = out[c], uv
-        if not (ok[c] or wander[c] > 0 or not (fitted[c] or e.status == "not_specular")
-                or not (e.roi.col0 <= u < e.roi.col1 and e.roi.row0 <= v < e.roi.row1)):
-            region = _bright_region(gray, e)
-            if region is not None and _inside(region, uv[None])[0]:
-                return int(c), region
+    # no wander to measure (no closed isophote; a not_specular lobe has none either), its ROI holding uv
+    rois = np.array([tuple(e.roi) for e in out], np.float64).reshape(-1, 4)  # (row0, row1, col0, col1)
+    bare = (~ok & ~(wander > 0) & (fitted | np.array([e.status == "not_specular" for e in out], bool))
+            & (rois[:, 2] <= uv[0]) & (uv[0] < rois[:, 3]) & (rois[:, 0] <= uv[1]) & (uv[1] < rois[:, 1]))
+    for c in np.flatnonzero(bare)[np.argsort(gaps[bare], kind="stable")]:
+        region = _bright_region(gray, out[c])
+        if region is not None and _inside(region, uv[None])[0]:
+            return int(c), region
     return None
 
 
-def partner_rows(image, estimates, camera, rig, fit_kwargs: dict) -> list:
+def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) -> list:
     """The estimates with each rejected candidate where an ok row's plane fit puts another guide's highlight
     made that guide's row, where its own plane fit puts the row's highlight back (module docstring).
 
@@ -404,6 +405,8 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict) -> list:
         The scope's lights (None, or every light at the camera centre: returned unchanged).
     fit_kwargs : dict
         The frame's arguments of :func:`~simtest.reconstruct.light_fits.light_aware_estimates`.
+    gray : ndarray of shape (H, W), optional
+        The frame's luma when at hand.
 
     Returns
     -------
@@ -415,7 +418,6 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict) -> list:
         return out
     bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
     wander = np.array([estimate_wander_px(e) for e in out])
-    gray = None
     for a, est in enumerate(estimates):
         fit = (est.light_aware or {}).get("photometric_fit")
         if not (est.ok and est.recommended.normal_from == "photometric_fit" and _plane(fit)):
