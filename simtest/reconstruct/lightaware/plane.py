@@ -251,6 +251,11 @@ def _fits(est: LightAwareEstimate) -> bool:
     return (est.ok or est.status in ("depth_not_observable", "too_few_points")) and est.curvature_shift_deg is None
 
 
+def _curved(est: LightAwareEstimate) -> bool:
+    """Whether a fit's residual holds a curved patch's pattern: a misfit, or a pattern kept within its sigma."""
+    return est.status == "plane_misfit" or est.curvature_shift_deg is not None
+
+
 def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
     """One lobe's fit, or with ``lobe="auto"`` Phong's, where it misfits GGX's, where the better of the two
     leaves a curved pattern Blinn's too (:func:`_choose_lobe`), each from Phong's plane."""
@@ -264,7 +269,7 @@ def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
              else dict(start_normal=s.start_normal, start_roughness=s.start_roughness))
     ggx = _fit_plane(*fit, replace(s, lobe="ggx", **start))
     best = _choose_lobe(pho, ggx)
-    if not (best.status == "plane_misfit" or best.curvature_shift_deg is not None):
+    if not _curved(best):
         return best  # (a fit that runs off tells nothing of the lobe's shape)
     return _choose_lobe(pho, ggx, _fit_plane(*fit, replace(s, lobe="blinn", **start)))
 
@@ -352,9 +357,7 @@ def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool
 
 def _one_channel_clipped(rgb, clip_level) -> bool:
     """Whether an RGB ROI holds a pixel clipped in exactly one channel."""
-    if clip_level is None:
-        return False
-    return bool(np.any(np.count_nonzero(np.asarray(rgb) >= per_channel(clip_level), axis=2) == 1))
+    return clip_level is not None and bool(np.any(np.count_nonzero(np.asarray(rgb) >= per_channel(clip_level), 2) == 1))
 
 
 def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> LightAwareEstimate:
@@ -389,11 +392,8 @@ def _bic(est: LightAwareEstimate) -> float:
 def _choose_lobe(pho: LightAwareEstimate, *others: LightAwareEstimate) -> LightAwareEstimate:
     """The Phong fit or one of the other lobes' (``photometric_fit``'s Notes); its detail names the others'
     residual RMS."""
-    def rank(e):
-        failed = e.status == "not_converged" or not e.has_normal
-        misfit = e.status == "plane_misfit"
-        # a curved pattern in the residual (a misfit, or curvature_shift_deg) ranks last; of such, Phong
-        flawed = misfit or e.curvature_shift_deg is not None
+    def rank(e):  # a curved pattern in the residual (_curved) ranks last; of such, Phong
+        failed, flawed = e.status == "not_converged" or not e.has_normal, _curved(e)
         return (failed, flawed, 0.0 if flawed and e is pho else (1.0 if flawed else _bic(e)))
 
     best = min((pho, *others), key=rank)  # (a tie keeps the first: Phong)
