@@ -368,7 +368,8 @@ WHITE_SHARE_MIN = decision(
 SIGNIFICANCE_MIN = decision(
     "SIGNIFICANCE_MIN", 8.0, "single-pixel noise standard deviations at the background's level",
     "Smallest top-hat height at the BP pixel (unsmoothed): the largest of a million Gaussian pixel "
-    "noises reaches about 5 sigma, so 8 leaves a margin for noise that is not Gaussian (texture, JPEG).",
+    "noises reaches about 5 sigma, so 8 leaves a margin for noise that is not Gaussian (texture, JPEG). "
+    "The light-aware fits hold a colour projection to the same bar: its valued pixels must show the lobe.",
     basis="physics", stage=_V)
 CONTRAST_MIN = decision(
     "CONTRAST_MIN", 0.6, "fraction of the room the sensor leaves at the BP",

@@ -13,10 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from simtest.decisions import TWO_CHANNEL_Z
+from simtest.decisions import SIGNIFICANCE_MIN, TWO_CHANNEL_Z
 from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
+from simtest.reconstruct.detect_pixels import noise_sigma_of_differences
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.colour import per_channel, specular_image
 from simtest.reconstruct.lightaware.model import _normal_derivs
@@ -334,8 +335,9 @@ def _darkest(rgb, clip_level, margin=None) -> tuple[int, float | None]:
 
 def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool = False, margin=None):
     """The single image a colour ROI is fitted on: ``(values, clip_level, lower, missing, detail, how)``. The projection
-    of :func:`~simtest.reconstruct.lightaware.colour.specular_image`, or the darkest channel with its clip level;
-    ``how`` is the estimate's ``projection``."""
+    of :func:`~simtest.reconstruct.lightaware.colour.specular_image`, or the darkest channel with its clip level
+    where none exists or the pixels the projection values no longer show the lobe (:func:`_sees_lobe`: a channel
+    it weighs negatively clipped over it); ``how`` is the estimate's ``projection``."""
     rgb = np.asarray(rgb, dtype=np.float64)
     out, how = None, None
     if projection in ("auto", "border"):
@@ -344,15 +346,33 @@ def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool
     if out is None and projection in ("auto", "least_fluctuation"):
         out, how = specular_image(rgb, clip_level, border=False, two_channels=two_channels,
                                   censor_margin=margin), "least_fluctuation"
+    hidden = out is not None and not _sees_lobe(out[0], out[2])
+    if hidden:
+        out = None  # the projection's clipped channel hides the lobe: the darkest channel reads it
     if out is not None:
         values, lower, missing, w = out
         text = "body colours projected out" + ("" if how == "body_colours" else " by the least-fluctuation weights")
         weights = ", ".join(f"{x:.3g}" for x in w)
         return values, None, lower, missing, f"{text} (w = {weights})", how
     c, clip = _darkest(rgb, clip_level, margin)
-    why = (f"channel {c} (no two body colours to project out: the border holds one, or white lies "
-           "too near them)")
+    why = (f"channel {c} (the {how.replace('_', ' ')} projection's valued pixels show no lobe: a channel it "
+           "weighs negatively clipped over it)" if hidden else
+           f"channel {c} (no two body colours to project out: the border holds one, or white lies too near them)")
     return rgb[..., c], clip, None, None, why, "darkest_channel"
+
+
+def _sees_lobe(values, missing) -> bool:
+    """Whether a projection's image ``values`` (H, W), ``missing`` (H, W) bool left out, still shows the lobe:
+    its largest valued pixel at least :data:`SIGNIFICANCE_MIN` times the noise above the border's median
+    (the noise from the second differences along rows of valued pixels; True where nothing is missing)."""
+    if missing is None or not missing.any():
+        return True
+    v = np.where(missing, np.nan, np.asarray(values, dtype=np.float64))
+    border = np.concatenate([v[0], v[-1], v[:, 0], v[:, -1]])
+    d = (v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:])).ravel()
+    d, border = d[np.isfinite(d)], border[np.isfinite(border)]
+    noise = noise_sigma_of_differences(d) if len(d) >= 3 else 0.0
+    return len(border) > 0 and bool(np.nanmax(v) - float(np.median(border)) > SIGNIFICANCE_MIN * noise)
 
 
 def _one_channel_clipped(rgb, clip_level) -> bool:

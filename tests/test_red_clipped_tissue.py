@@ -1,0 +1,122 @@
+"""Tissue whose red channel clips around the lobes (pink mucosa exposed bright, as an auto-exposure on
+luma leaves it): a colour projection weighs red negatively, so it cannot value those pixels, and where
+they cover the lobe its valued pixels show none. The fit then reads the darkest channel, which does.
+
+Before, the projection's fit of what was left (noise) passed as ``ok``: on the frames below the normals
+came 1.0 deg off and the depth four times too far (106 to 114 mm for 26.8), the fused lobes' rows up to
+14 px from their specular points."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from simtest.cli import app
+from simtest.geometry import angle_between_deg
+from simtest.reconstruct import lightaware as la
+from simtest.reconstruct.lightaware import colour as lam
+from simtest.reconstruct.lightaware.plane import _sees_lobe
+from test_lightaware_colour import RIG, _colour_plane
+
+
+def _srgb(s):
+    return np.where(s <= 0.0031308, 12.92 * s, 1.055 * np.power(np.maximum(s, 0.0031308), 1 / 2.4) - 0.055)
+
+
+def phong_frame(W, H, f, guides, normal, depth_mm, phong_n, ks, tissue, median, noise, seed):
+    """An 8-bit sRGB frame of a plane: per guide, Lambertian shading ``cos / r^2`` in the tissue's colour and a
+    white Phong lobe ``ks (R . V)^n / r^2`` (mirror direction R), exposed so that the shading's median is
+    ``median`` of full scale in the tissue's brightest channel, Gaussian noise before the curve, clipped.
+    Returns the frame, K and each guide's specular point (u, v) px."""
+    K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1.0]])
+    h = depth_mm * -normal[2]
+    vv, uu = np.mgrid[0:H, 0:W].astype(float)
+    d = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu)], -1)
+    X = d * (-h / (d @ normal))[..., None]
+    V = -X / np.linalg.norm(X, axis=-1, keepdims=True)
+    shade, lobes, truth = 0.0, 0.0, []
+    for L in guides:
+        Ld = L - X
+        r = np.linalg.norm(Ld, axis=-1)
+        Ld /= r[..., None]
+        cos = Ld @ normal
+        R = 2 * cos[..., None] * normal - Ld
+        shade = shade + np.maximum(cos, 0) / r ** 2
+        lobes = lobes + (cos > 0) * np.maximum((R * V).sum(-1), 0) ** phong_n / r ** 2
+        Lm = L - 2 * (normal @ L + h) * normal  # the guide's mirror image: the specular point on its ray
+        Xs = Lm * (h / -(normal @ Lm))
+        truth.append((K @ Xs)[:2] / Xs[2])
+    rgb = median / np.median(shade * max(tissue)) * (shade[..., None] * np.asarray(tissue) + ks * lobes[..., None])
+    s = np.clip(rgb + np.random.default_rng(seed).normal(0, noise, rgb.shape), 0, 1)
+    return np.rint(_srgb(s) * 255).astype(np.uint8), K, truth
+
+
+def test_a_projection_without_missing_pixels_sees_its_lobe():
+    values = np.zeros((20, 20))
+    assert _sees_lobe(values, None) and _sees_lobe(values, np.zeros((20, 20), bool))
+
+
+def test_a_lobe_inside_the_missing_pixels_is_not_seen_and_its_tails_are():
+    # a Gaussian lobe (peak 1, sigma 3 px) in 1 % noise, its centre left out to a radius of r px:
+    # at 12 px what is valued is noise (the lobe at 3e-4), at 6 px the tails are 0.14 (14 sigma)
+    rng = np.random.default_rng(0)
+    vv, uu = np.mgrid[0:81, 0:81] - 40.0
+    rr = np.hypot(uu, vv)
+    values = np.exp(-0.5 * (rr / 3.0) ** 2) + rng.normal(0, 0.01, rr.shape)
+    assert not _sees_lobe(values, rr < 12)
+    assert _sees_lobe(values, rr < 6)
+
+
+def test_a_fit_whose_projection_shows_no_lobe_reads_the_darkest_channel():
+    # the colour plane's red clipped at 0.4 (its shading's median 0.47): 78 % of the ROI and all of the
+    # lobes' significant pixels clip in red, whose projection weight is negative. The projection's fit
+    # did not converge; the darkest channel's is ok, the texture's bias in it 0.09 deg (as the
+    # colour tests' darkest-channel fit of this plane) and 0.1 % in depth
+    rgb, s, K, N, depth, bp = _colour_plane(0)
+    clip = np.array([0.4, 1.0, 1.0])
+    y = np.minimum(rgb + np.random.default_rng(1).normal(0, 0.005, rgb.shape), clip)
+    values, lower, missing, w = lam.specular_image(y, clip, two_channels=False)
+    assert w[0] < 0 and missing.mean() > 0.7 and not _sees_lobe(values, missing)
+    r = la.photometric_fit(y, (0, 0), bp, K, RIG, clip_level=clip, diffuse=True, censor=True, lobe="phong")
+    assert r.ok and r.projection == "darkest_channel" and "show no lobe" in r.detail, r
+    assert angle_between_deg(r.normal, N) < 0.2
+    assert r.distance_mm == pytest.approx(20.0, rel=0.01)
+    # red unclipped: the projection is kept, and exact to the noise
+    y = np.minimum(rgb + np.random.default_rng(1).normal(0, 0.005, rgb.shape), 1.2)
+    kept = la.photometric_fit(y, (0, 0), bp, K, RIG, clip_level=1.2, diffuse=True, censor=True, lobe="phong")
+    assert kept.ok and kept.projection == "body_colours", kept
+    assert angle_between_deg(kept.normal, N) < 0.05
+
+
+@pytest.mark.parametrize("seed, phong_n", [(1, 250.0), (3, 400.0)])
+def test_pink_tissue_clipped_in_red_around_the_lobes_gets_both_guides_normals(tmp_path, seed, phong_n):
+    # 480 x 400 px, f 180 px; the guides 8 mm apart, the plane 13 deg off the axis at 27.5 mm; the shading's
+    # median at 0.45 of full scale in red: red clips over a disc around the two lobes, which clip white.
+    # Every guide's row at its specular point (the fused lobes' joint fit places it; a pixel: the BP of
+    # a clipped plateau) and its normal within 0.05 deg (the fits reach 0.0013 deg; before 1.02 to 1.07)
+    normal = np.array([-0.22907546, 0.01813979, -0.97323963])
+    normal /= np.linalg.norm(normal)
+    guides = 4.0 * np.array([[np.cos(0.3), np.sin(0.3), 0.0], [-np.cos(0.3), -np.sin(0.3), 0.0]])
+    img, K, truth = phong_frame(480, 400, 180.0, guides, normal, 27.5, phong_n, 8.0, (0.8, 0.35, 0.3), 0.45, 0.005,
+                                seed)
+    assert (img[..., 0] == 255).mean() > 0.03  # red clips over the lobes' surround
+    Image.fromarray(img).save(tmp_path / "frame.png")
+    cam = {"model": "pinhole", "K": K.tolist(), "image_size": [480, 400],
+           "response": {"curve": "srgb", "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255.0},
+           "lights": [{"position_mm": L.tolist(), "intensity": 1.0, "falloff": "inverse_square",
+                       "profile_exponent": 0.0} for L in guides]}
+    (tmp_path / "camera.json").write_text(json.dumps(cam))
+    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "frame.png"), "--intrinsics",
+                                   str(tmp_path / "camera.json"), "-o", str(tmp_path / "out"), "--no-overlay",
+                                   "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
+    for uv in truth:
+        d = [float(np.hypot(*(np.asarray(s["bp_px"]) - uv))) for s in specs]
+        s = specs[int(np.argmin(d))]
+        assert min(d) <= 1.0 and s["status"] == "ok" and s["normal_from"] == "photometric_fit", (uv, d, s["detail"])
+        assert angle_between_deg(s["normal"], normal) < 0.05
