@@ -501,6 +501,13 @@ PAIR_TOL_PX = decision(
     "Largest distance between a peak's region and the rig's predicted curve for it to be another "
     "guide's highlight: half a pixel of BP rounding per axis and about a pixel of the detection's "
     "blur (as OWN_RADIUS_PX).", basis="physics", stage=_V)
+TOP_CORE_SHARE = decision(
+    "TOP_CORE_SHARE", 0.5, "share of a clipped top's largest distance from its edge",
+    "A guide's specular point is where its lobe peaks, so it lies inside its clipped top, and away from the "
+    "top's edge: the top is the lobe's level set above the clip, centred on the peak up to the shift of "
+    "the light's falloff and the perspective, which grows with the top (15 px on a top of 106 px inner "
+    "radius). A joint fit whose points lie at least this deep in each of a pair's tops places the pair; "
+    "a plane three times too far puts them at the tops' inner edges, near 0.", basis="convention", stage=_V)
 FUSED_LOBE_LEVEL = decision(
     "FUSED_LOBE_LEVEL", 0.5, "share of the BP's height above the ROI border's median",
     "A guide's specular point belongs to a candidate's highlight when it lies in the connected "

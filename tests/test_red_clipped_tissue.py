@@ -8,51 +8,15 @@ came 1.0 deg off and the depth four times too far (106 to 114 mm for 26.8), the 
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
-from PIL import Image
-from typer.testing import CliRunner
 
-from simtest.cli import app
+from phong_frames import nearest_row, phong_frame, reconstruct_frame
 from simtest.geometry import angle_between_deg
 from simtest.reconstruct import lightaware as la
 from simtest.reconstruct.lightaware import colour as lam
 from simtest.reconstruct.lightaware.plane import _sees_lobe
 from test_lightaware_colour import RIG, _colour_plane
-
-
-def _srgb(s):
-    return np.where(s <= 0.0031308, 12.92 * s, 1.055 * np.power(np.maximum(s, 0.0031308), 1 / 2.4) - 0.055)
-
-
-def phong_frame(W, H, f, guides, normal, depth_mm, phong_n, ks, tissue, median, noise, seed):
-    """An 8-bit sRGB frame of a plane: per guide, Lambertian shading ``cos / r^2`` in the tissue's colour and a
-    white Phong lobe ``ks (R . V)^n / r^2`` (mirror direction R), exposed so that the shading's median is
-    ``median`` of full scale in the tissue's brightest channel, Gaussian noise before the curve, clipped.
-    Returns the frame, K and each guide's specular point (u, v) px."""
-    K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1.0]])
-    h = depth_mm * -normal[2]
-    vv, uu = np.mgrid[0:H, 0:W].astype(float)
-    d = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu)], -1)
-    X = d * (-h / (d @ normal))[..., None]
-    V = -X / np.linalg.norm(X, axis=-1, keepdims=True)
-    shade, lobes, truth = 0.0, 0.0, []
-    for L in guides:
-        Ld = L - X
-        r = np.linalg.norm(Ld, axis=-1)
-        Ld /= r[..., None]
-        cos = Ld @ normal
-        R = 2 * cos[..., None] * normal - Ld
-        shade = shade + np.maximum(cos, 0) / r ** 2
-        lobes = lobes + (cos > 0) * np.maximum((R * V).sum(-1), 0) ** phong_n / r ** 2
-        Lm = L - 2 * (normal @ L + h) * normal  # the guide's mirror image: the specular point on its ray
-        Xs = Lm * (h / -(normal @ Lm))
-        truth.append((K @ Xs)[:2] / Xs[2])
-    rgb = median / np.median(shade * max(tissue)) * (shade[..., None] * np.asarray(tissue) + ks * lobes[..., None])
-    s = np.clip(rgb + np.random.default_rng(seed).normal(0, noise, rgb.shape), 0, 1)
-    return np.rint(_srgb(s) * 255).astype(np.uint8), K, truth
 
 
 def test_a_projection_without_missing_pixels_sees_its_lobe():
@@ -104,19 +68,8 @@ def test_pink_tissue_clipped_in_red_around_the_lobes_gets_both_guides_normals(tm
     img, K, truth = phong_frame(480, 400, 180.0, guides, normal, 27.5, phong_n, 8.0, (0.8, 0.35, 0.3), 0.45, 0.005,
                                 seed)
     assert (img[..., 0] == 255).mean() > 0.03  # red clips over the lobes' surround
-    Image.fromarray(img).save(tmp_path / "frame.png")
-    cam = {"model": "pinhole", "K": K.tolist(), "image_size": [480, 400],
-           "response": {"curve": "srgb", "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255.0},
-           "lights": [{"position_mm": L.tolist(), "intensity": 1.0, "falloff": "inverse_square",
-                       "profile_exponent": 0.0} for L in guides]}
-    (tmp_path / "camera.json").write_text(json.dumps(cam))
-    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "frame.png"), "--intrinsics",
-                                   str(tmp_path / "camera.json"), "-o", str(tmp_path / "out"), "--no-overlay",
-                                   "--workers", "1"])
-    assert res.exit_code == 0, res.output
-    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
+    specs = reconstruct_frame(tmp_path, img, K, guides)
     for uv in truth:
-        d = [float(np.hypot(*(np.asarray(s["bp_px"]) - uv))) for s in specs]
-        s = specs[int(np.argmin(d))]
-        assert min(d) <= 1.0 and s["status"] == "ok" and s["normal_from"] == "photometric_fit", (uv, d, s["detail"])
+        d, s = nearest_row(specs, uv)
+        assert d <= 1.0 and s["status"] == "ok" and s["normal_from"] == "photometric_fit", (uv, d, s["detail"])
         assert angle_between_deg(s["normal"], normal) < 0.05

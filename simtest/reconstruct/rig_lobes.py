@@ -35,7 +35,7 @@ import numpy as np
 
 from simtest._threads import one_thread_each
 from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH,
-                               PAIR_TOL_PX, TOPS_PLACE_SIGMA_PX)
+                               PAIR_TOL_PX, TOP_CORE_SHARE, TOPS_PLACE_SIGMA_PX)
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import NOT_FITTED, PLANE_ONLY, _offset_rig, light_aware_estimates
@@ -219,12 +219,25 @@ def _on_a_top(uv: np.ndarray, labels: np.ndarray, two, origin) -> bool:
     return bool(np.isin(labels[rc[inside, 0], rc[inside, 1]], two).any())
 
 
-def _at_each_centre(uv: np.ndarray, centres: np.ndarray) -> bool:
-    """Whether each of the tops' centres (2, 2) has one of the points (k, 2) within
-    :data:`~simtest.decisions.PAIR_TOL_PX`."""
+def _places_the_pair(uv: np.ndarray, pair, origin) -> bool:
+    """Whether a split's points (k, 2) place a pair of clipped tops (:func:`_tops_pair`): one within
+    :data:`~simtest.decisions.PAIR_TOL_PX` of each top's centroid, or one on each top at least
+    :data:`~simtest.decisions.TOP_CORE_SHARE` of its largest distance from its edge (a large top's
+    centroid is off its specular point)."""
+    centres, labels, two, _ = pair
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    gaps = np.linalg.norm(centres[:, None] - uv[None], axis=-1)
-    return bool(len(uv) and (np.nan_to_num(gaps, nan=np.inf).min(axis=1) <= PAIR_TOL_PX).all())
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    if not len(uv):
+        return False
+    if (np.linalg.norm(centres[:, None] - uv[None], axis=-1).min(axis=1) <= PAIR_TOL_PX).all():
+        return True
+    rc = np.rint(uv_to_rc(uv)).astype(np.int64) - np.asarray(origin, np.int64)
+    rc = rc[((rc >= 0) & (rc < labels.shape)).all(axis=1)]
+    for t in two:  # the depth below the top's edge (0 off it)
+        depth = cv2.distanceTransform(np.pad((labels == t).astype(np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+        if not (depth[rc[:, 0], rc[:, 1]] >= TOP_CORE_SHARE * depth.max()).any():
+            return False
+    return True
 
 
 def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
@@ -257,13 +270,14 @@ def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
 
 
 def _pair_rows(est, camera, rig, region, pair, others: np.ndarray, split: list | None) -> list | None:
-    """The ``rig_pair`` rows of a clipped candidate's paired tops where ``split`` puts no BP at each centre, or None."""
+    """The ``rig_pair`` rows of a clipped candidate's paired tops where ``split`` does not place them
+    (:func:`_places_the_pair`), or None."""
     if pair is None:
         return None
     pts, labels, two, plane = pair
     if _on_a_top(others, labels, two, region[1:]):
         return None  # a top that holds an ok candidate's BP already has its row
-    if split is not None and _at_each_centre(np.array([r.bp_px for r in split]), pts):
+    if split is not None and _places_the_pair(np.array([r.bp_px for r in split]), pair, region[1:]):
         return None  # the candidate's fit places the pair: its split stands
     ests, guides = _pair_estimates(camera, rig, pts, plane), plane[2]
     return [_row(est, camera, pts[k], f"guide {guides[k] + 1}'s clipped top of 2 fused into one highlight",
@@ -335,7 +349,7 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
             gray = luma(np.asarray(image)) if gray is None else gray
             # the light-aware ok candidates' BPs and the guide lobes split so far have their rows
             others = np.concatenate([bps[aware & (np.arange(len(bps)) != i)], *(pts for _, pts, _, _ in splits)])
-            # the fit's split if at each paired top's centre, else the pair's rows, else the split
+            # the fit's split if it places the paired tops (_places_the_pair), else the pair's rows, else the split
             region = _bright_region(gray, est)
             # the clipped tops' pair, once for both (the rig's pair of one guide is none)
             pair = _tops_pair(gray, region, camera, rig) if est.saturated and region is not None else None
