@@ -17,6 +17,7 @@ from simtest.reconstruct import lightaware as la
 from simtest.reconstruct.lightaware import colour as lam
 from simtest.reconstruct.lightaware.plane import _sees_lobe
 from test_lightaware_colour import RIG, _colour_plane
+from test_rig_pairs import _frame_rows, sensor_plane
 
 
 def test_a_projection_without_missing_pixels_sees_its_lobe():
@@ -73,3 +74,17 @@ def test_pink_tissue_clipped_in_red_around_the_lobes_gets_both_guides_normals(tm
         d, s = nearest_row(specs, uv)
         assert d <= 1.0 and s["status"] == "ok" and s["normal_from"] == "photometric_fit", (uv, d, s["detail"])
         assert angle_between_deg(s["normal"], normal) < 0.05
+
+
+@pytest.mark.parametrize("depth_mm", [12.0, 15.0])
+def test_red_clipped_under_noise_makes_no_second_body_colour_on_the_command_line(tmp_path, depth_mm):
+    # the tests' sensor plane (Blinn lobes, 1 % noise clipped again at full scale), pink and exposed
+    # so that red clips over a fifth of the frame: inside it noise leaves red readings below the
+    # clip, which the border counted as a second body colour; its projection (noise gain 9 to 10)
+    # fitted one guide 10 to 11 deg off as ok. Both guides' normals within 0.1 deg (their fits' sigma
+    # about 0.02 to 0.04 deg)
+    img, K, normal, truth = sensor_plane(25.0, depth_mm, 45, shininess=1000.0, size=400, f=150.0,
+                                         tissue=(0.8, 0.35, 0.3), median=0.55, azimuth_deg=30.0)
+    assert (img[..., 0] == 255).mean() > 0.15
+    _, rows = _frame_rows(tmp_path, img, K, normal, truth)
+    assert len(rows) == 2 and all(status == "ok" and err is not None and err < 0.1 for status, err in rows), rows

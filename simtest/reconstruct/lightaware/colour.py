@@ -41,8 +41,9 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     Dichromatic reflection [6]_: ``I = S (1, 1, 1) + D a(x)``, the film's reflection S white and the
     body reflection coloured by the albedo ``a(x)``, whose texture moves within a plane B of RGB.
     Weights ``w`` orthogonal to B with ``w . (1, 1, 1) = 1`` give ``w . I = S`` whatever the texture.
-    B is the two leading right singular vectors of the border band's unclipped colours, pixels whose
-    projected value exceeds :data:`_BODY_TRIM_SHARE` of the peak (another lobe) trimmed in passes; a
+    B is the two leading right singular vectors of the border band's colours clear of the clip (each
+    channel below its clip less ``censor_margin``, no 8-neighbour clipped: under noise a clipped
+    channel reads below its clip now and then, a colour no tissue has), pixels whose projected value exceeds :data:`_BODY_TRIM_SHARE` of the peak (another lobe) trimmed in passes; a
     second body colour counts only above :data:`_BODY_SECOND_SNR` times the third singular value.
     Otherwise (or with a noise gain ``|w|`` above :data:`BODY_PROJECTION_MAX_GAIN`) the
     least-fluctuation weights stand in (:func:`_least_fluctuation_weights`), and failing those None.
@@ -63,8 +64,8 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
         Value a pixel clipped in one channel with a negative weight from its two other channels
         (:func:`_from_two_channels`); False: leave it out (``missing``).
     censor_margin : float or array_like of 3 floats, optional
-        A channel within this of its clip level counts as clipped in the masks returned
-        (:data:`~simtest.decisions.CLIP_MARGIN`). None: 0.
+        A channel within this of its clip level counts as clipped, in the masks returned and where
+        the body colours are measured (:data:`~simtest.decisions.CLIP_MARGIN`). None: 0.
 
     Returns
     -------
@@ -90,9 +91,14 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     if clip_level is not None and np.size(clip_level) not in (1, 3):
         raise ValueError(f"clip_level: need 1 or 3 numbers, got {clip_level!r}")
     clip = np.full(3, np.inf) if clip_level is None else per_channel(clip_level)
-    clipped = v >= clip  # (H, W, 3)
+    # a channel within the margin of its clip may be clipped under the noise: no body colour, censored
+    level = clip if censor_margin is None else clip - per_channel(censor_margin)
+    clipped = v >= level  # (H, W, 3)
     unclipped = ~clipped.any(axis=2)
-    edge = v[(_border_band(v.shape[:2]) if ring is None else ring) & unclipped]
+    # the body colours only where no 8-neighbour is clipped: inside a clipped area an unclipped reading
+    # is a clipped channel's low noise draw, whose colour is no body colour
+    clear = ~require("scipy.ndimage").maximum_filter(~unclipped, size=3, mode="constant", cval=False)
+    edge = v[(_border_band(v.shape[:2]) if ring is None else ring) & clear]
     if len(edge) < 3:
         return None
     free = v[unclipped]
@@ -114,12 +120,8 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
         w = _least_fluctuation_weights(v, ~unclipped)
     if w is None:
         return None
-    values = v @ w
-    if censor_margin is not None:
-        # a channel censored below the clip holds at least its level: bound by the level, not the noisy value
-        level = clip - per_channel(censor_margin)
-        clipped = v >= level
-        values = np.minimum(v, level) @ w
+    # a channel censored below the clip holds at least its level: bound by the level, not the noisy value
+    values = v @ w if censor_margin is None else np.minimum(v, level) @ w
     anyc = clipped.any(axis=2)
     neg = (clipped & (w < 0)).any(axis=2)
     if two_channels and neg.any():
