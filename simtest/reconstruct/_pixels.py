@@ -72,6 +72,19 @@ def uv_to_rc(uv) -> np.ndarray:
     return np.asarray(uv, dtype=np.float64)[..., ::-1].copy()
 
 
+def border_ring(a) -> np.ndarray:
+    """The pixels on the edges of an (H, W) array: the first and last rows, then the first and last
+    columns, each corner twice, float64 (2 W + 2 H,).
+
+    Examples
+    --------
+    >>> border_ring(np.arange(6).reshape(2, 3)).tolist()
+    [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 0.0, 3.0, 2.0, 5.0]
+    """
+    a = np.asarray(a)
+    return np.concatenate([a[0], a[-1], a[:, 0], a[:, -1]], dtype=np.float64)
+
+
 class Roi(NamedTuple):
     """A rectangular region of interest in array indices, half-open: ``image[row0:row1, col0:col1]``.
 

@@ -20,7 +20,7 @@ from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, CLIP_NOISE_FROM_
                                LOBE_ROI_MISMATCH, PAIR_TOL_PX, SIGMA_MARGIN)
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
-from simtest.reconstruct._pixels import Roi
+from simtest.reconstruct._pixels import Roi, border_ring
 from simtest.reconstruct.detect import luma, noise_sigma
 from simtest.reconstruct.detect_pixels import frame_ceiling, noise_sigma_of_differences
 from simtest.reconstruct.isophote import extract_isophote
@@ -341,8 +341,7 @@ def _isocurve_isophotes(gray, big: Roi, bp_uv, refine: bool = True) -> tuple[lis
         The points (u, v), px, and their isovalues.
     """
     vals = np.asarray(gray[big.slices], dtype=np.float64)
-    border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
-    base = float(np.median(border))
+    base = float(np.median(border_ring(vals)))
     c, r = int(round(bp_uv[0])) - big.col0, int(round(bp_uv[1])) - big.row0
     peak = float(vals[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2].max())
     if not peak > base:

@@ -210,13 +210,23 @@ def _tops_pair(gray: np.ndarray, region, camera, rig):
     return None if plane is None else (pts, labels, two.tolist(), plane)
 
 
+def _finite_uv(uv) -> np.ndarray:
+    """The finite rows of points (k, 2), float64."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    return uv[np.isfinite(uv).all(axis=1)]
+
+
+def _pixels_in(uv: np.ndarray, shape, origin) -> np.ndarray:
+    """The (row, col) (m, 2) int of the pixels of finite points (k, 2) in an array of ``shape`` whose
+    [0, 0] is the image's (row, col) ``origin``; points off it left out."""
+    rc = np.rint(uv_to_rc(uv)).astype(np.int64).reshape(-1, 2) - np.asarray(origin, np.int64)
+    return rc[((rc >= 0) & (rc < shape)).all(axis=1)]
+
+
 def _on_a_top(uv: np.ndarray, labels: np.ndarray, two, origin) -> bool:
     """Whether any of the points (k, 2) lies on either of the two tops ``two`` of ``labels``."""
-    uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    uv = uv[np.isfinite(uv).all(axis=1)]
-    rc = np.rint(uv_to_rc(uv)).astype(np.int64) - np.asarray(origin, np.int64) if len(uv) else np.zeros((0, 2), int)
-    inside = ((rc >= 0) & (rc < labels.shape)).all(axis=1)
-    return bool(np.isin(labels[rc[inside, 0], rc[inside, 1]], two).any())
+    rc = _pixels_in(_finite_uv(uv), labels.shape, origin)
+    return bool(np.isin(labels[rc[:, 0], rc[:, 1]], two).any())
 
 
 def _places_the_pair(uv: np.ndarray, pair, origin) -> bool:
@@ -225,14 +235,12 @@ def _places_the_pair(uv: np.ndarray, pair, origin) -> bool:
     :data:`~simtest.decisions.TOP_CORE_SHARE` of its largest distance from its edge (a large top's
     centroid is off its specular point)."""
     centres, labels, two, _ = pair
-    uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    uv = uv[np.isfinite(uv).all(axis=1)]
+    uv = _finite_uv(uv)
     if not len(uv):
         return False
     if (np.linalg.norm(centres[:, None] - uv[None], axis=-1).min(axis=1) <= PAIR_TOL_PX).all():
         return True
-    rc = np.rint(uv_to_rc(uv)).astype(np.int64) - np.asarray(origin, np.int64)
-    rc = rc[((rc >= 0) & (rc < labels.shape)).all(axis=1)]
+    rc = _pixels_in(uv, labels.shape, origin)
     for t in two:  # the depth below the top's edge (0 off it)
         depth = cv2.distanceTransform(np.pad((labels == t).astype(np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
         if not (depth[rc[:, 0], rc[:, 1]] >= TOP_CORE_SHARE * depth.max()).any():

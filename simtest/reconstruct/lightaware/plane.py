@@ -17,6 +17,7 @@ from simtest.decisions import SIGNIFICANCE_MIN, TWO_CHANNEL_Z
 from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
+from simtest.reconstruct._pixels import border_ring
 from simtest.reconstruct.detect_pixels import noise_sigma_of_differences
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.colour import per_channel, specular_image
@@ -368,7 +369,7 @@ def _sees_lobe(values, missing) -> bool:
     if missing is None or not missing.any():
         return True
     v = np.where(missing, np.nan, np.asarray(values, dtype=np.float64))
-    border = np.concatenate([v[0], v[-1], v[:, 0], v[:, -1]])
+    border = border_ring(v)
     d = (v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:])).ravel()
     d, border = d[np.isfinite(d)], border[np.isfinite(border)]
     noise = noise_sigma_of_differences(d) if len(d) >= 3 else 0.0

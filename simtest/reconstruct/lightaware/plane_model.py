@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from simtest._lazy import require
+from simtest.reconstruct._pixels import border_ring
 from simtest.reconstruct.lightaware.model import (
     BLINN_PER_PHONG, _normal_derivs, _ray_light, _rays, _rig_arrays, _rig_diffuse, _rig_diffuse_grad, _rig_geometry,
     _rig_grad, _rig_grad_ggx, _rig_value, _rig_value_ggx, _roi_grid, _roi_samples, ggx_alpha_of_phong, phong_of_ggx_alpha,
@@ -62,8 +63,7 @@ class PlaneModel:
         self.vals, self.keep, self.lower, self.clip_level = vals, keep, lower, clip_level
         self.diffuse, self.ggx, self.blinn = s.diffuse, ggx, s.lobe == "blinn"
         self.H, self.W = vals.shape
-        border = np.concatenate([vals[0], vals[-1], vals[:, 0], vals[:, -1]])
-        self.b_level = float(np.median(border))
+        self.b_level = float(np.median(border_ring(vals)))
         self.ss = ss = int(s.supersample)
         if ss < 1:
             raise ValueError(f"supersample: must be >= 1, got {s.supersample!r}")
