@@ -73,15 +73,8 @@ def uv_to_rc(uv) -> np.ndarray:
 
 
 def border_ring(a) -> np.ndarray:
-    """The pixels on the edges of an (H, W) array: the first and last rows, then the first and last
-    columns, each corner twice, float64 (2 W + 2 H,).
-
-    Examples
-    --------
-    >>> border_ring(np.arange(6).reshape(2, 3)).tolist()
-    [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 0.0, 3.0, 2.0, 5.0]
-    """
-    a = np.asarray(a)
+    """The edge pixels of an (H, W) array, float64 (2 W + 2 H,): its first and last rows, then its first
+    and last columns (each corner twice)."""
     return np.concatenate([a[0], a[-1], a[:, 0], a[:, -1]], dtype=np.float64)
 
 

@@ -73,14 +73,19 @@ def _bright_region(gray: np.ndarray, est) -> tuple[np.ndarray, int, int] | None:
     return labels == labels[r, c], r0, c0
 
 
+def _roi_index(uv, shape, origin) -> tuple[np.ndarray, np.ndarray]:
+    """Per point (k, 2) (u, v): its pixel's (row, col) (k, 2) int in an array of ``shape`` whose [0, 0]
+    is the image's (row, col) ``origin``, and (k,) bool whether the point is finite and on the array."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    ok = np.isfinite(uv).all(axis=1)
+    rc = np.rint(uv_to_rc(np.where(ok[:, None], uv, -1.0))).astype(np.int64) - np.asarray(origin, np.int64)
+    return rc, ok & ((rc >= 0) & (rc < shape)).all(axis=1)
+
+
 def _inside(mask_at, pts: np.ndarray) -> np.ndarray:
     """Per point (u, v): whether it lies in the region (:func:`_bright_region`)."""
-    mask, r0, c0 = mask_at
-    ok = np.isfinite(pts).all(axis=1)
-    rc = np.full((len(pts), 2), -1, np.int64)
-    rc[ok] = np.rint(uv_to_rc(pts[ok])).astype(np.int64) - (r0, c0)
-    inside = ok & (rc[:, 0] >= 0) & (rc[:, 0] < mask.shape[0]) & (rc[:, 1] >= 0) & (rc[:, 1] < mask.shape[1])
-    inside[inside] = mask[rc[inside, 0], rc[inside, 1]]
+    rc, inside = _roi_index(pts, mask_at[0].shape, mask_at[1:])
+    inside[inside] = mask_at[0][rc[inside, 0], rc[inside, 1]]
     return inside
 
 
@@ -132,8 +137,7 @@ def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     """
     _, r0, c0 = region
     pts = _specular_points(camera, rig, normal, _TOPS_H_GRID)  # (M, J, 2)
-    rc = np.rint(uv_to_rc(np.nan_to_num(pts.reshape(-1, 2), nan=-1.0))).astype(np.int64) - (r0, c0)
-    inside = ((rc >= 0) & (rc < depth.shape)).all(axis=1)
+    rc, inside = _roi_index(pts, depth.shape, (r0, c0))
     d = np.zeros(len(rc))
     d[inside] = depth[rc[inside, 0], rc[inside, 1]]
     d = d.reshape(pts.shape[:2])
@@ -210,23 +214,10 @@ def _tops_pair(gray: np.ndarray, region, camera, rig):
     return None if plane is None else (pts, labels, two.tolist(), plane)
 
 
-def _finite_uv(uv) -> np.ndarray:
-    """The finite rows of points (k, 2), float64."""
-    uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    return uv[np.isfinite(uv).all(axis=1)]
-
-
-def _pixels_in(uv: np.ndarray, shape, origin) -> np.ndarray:
-    """The (row, col) (m, 2) int of the pixels of finite points (k, 2) in an array of ``shape`` whose
-    [0, 0] is the image's (row, col) ``origin``; points off it left out."""
-    rc = np.rint(uv_to_rc(uv)).astype(np.int64).reshape(-1, 2) - np.asarray(origin, np.int64)
-    return rc[((rc >= 0) & (rc < shape)).all(axis=1)]
-
-
 def _on_a_top(uv: np.ndarray, labels: np.ndarray, two, origin) -> bool:
     """Whether any of the points (k, 2) lies on either of the two tops ``two`` of ``labels``."""
-    rc = _pixels_in(_finite_uv(uv), labels.shape, origin)
-    return bool(np.isin(labels[rc[:, 0], rc[:, 1]], two).any())
+    rc, ok = _roi_index(uv, labels.shape, origin)
+    return bool(np.isin(labels[rc[ok, 0], rc[ok, 1]], two).any())
 
 
 def _places_the_pair(uv: np.ndarray, pair, origin) -> bool:
@@ -235,12 +226,14 @@ def _places_the_pair(uv: np.ndarray, pair, origin) -> bool:
     :data:`~simtest.decisions.TOP_CORE_SHARE` of its largest distance from its edge (a large top's
     centroid is off its specular point)."""
     centres, labels, two, _ = pair
-    uv = _finite_uv(uv)
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    uv = uv[np.isfinite(uv).all(axis=1)]
     if not len(uv):
         return False
     if (np.linalg.norm(centres[:, None] - uv[None], axis=-1).min(axis=1) <= PAIR_TOL_PX).all():
         return True
-    rc = _pixels_in(uv, labels.shape, origin)
+    rc, ok = _roi_index(uv, labels.shape, origin)
+    rc = rc[ok]
     for t in two:  # the depth below the top's edge (0 off it)
         depth = cv2.distanceTransform(np.pad((labels == t).astype(np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
         if not (depth[rc[:, 0], rc[:, 1]] >= TOP_CORE_SHARE * depth.max()).any():
