@@ -113,6 +113,19 @@ def test_the_two_channel_fit_is_kept_only_where_the_plain_one_is_ok_and_agrees(
         assert got.normal is both.normal and "valued from the other two" in got.detail
     if refused:
         assert got is plain  # unchanged: the fit without those pixels, as before they were valued
+    # where both are ok and more precise but disagree, the darkest channel's fit stands in where
+    # it is ok (one of the two misread the lobe), else the plain one; elsewhere it is never fitted
+    disagree = plain_status == both_status == "ok" and sb < sp and (g > room + margin or dgap > droom + margin)
+    calls = []
+    for chan_status in ("ok", "plane_misfit"):
+        chan = _est(chan_status, _tilted(0.5), 0.2, 21.0, 0.5, projection="darkest_channel")
+        got = lap._two_channel_choice(both, plain, lambda c=chan: calls.append(c) or c)
+        if disagree:
+            assert (got.normal is chan.normal and "disagree" in got.detail) if chan_status == "ok" else got is plain
+        if kept:
+            assert got.normal is both.normal and not calls
+        if not (plain_status == both_status == "ok") or not sb < sp:
+            assert got is plain and not calls
     # on one channel (no projection) no pixel was valued from two: the plain fit, whatever else
     one = _est("ok", _tilted(0.0), 0.1 * sp, 20.0, 0.1 * dp, projection="darkest_channel")
     assert lap._two_channel_choice(one, plain) is plain

@@ -42,8 +42,9 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     body reflection coloured by the albedo ``a(x)``, whose texture moves within a plane B of RGB.
     Weights ``w`` orthogonal to B with ``w . (1, 1, 1) = 1`` give ``w . I = S`` whatever the texture.
     B is the two leading right singular vectors of the border band's colours clear of the clip (each
-    channel below its clip less ``censor_margin``, no 8-neighbour clipped: under noise a clipped
-    channel reads below its clip now and then, a colour no tissue has), pixels whose projected value exceeds :data:`_BODY_TRIM_SHARE` of the peak (another lobe) trimmed in passes; a
+    channel below its clip less ``censor_margin``, no 8-neighbour clipped: noise leaves a clipped
+    channel below its clip now and then, a colour no tissue has), pixels whose projected value
+    exceeds :data:`_BODY_TRIM_SHARE` of the peak (another lobe) trimmed in passes; a
     second body colour counts only above :data:`_BODY_SECOND_SNR` times the third singular value.
     Otherwise (or with a noise gain ``|w|`` above :data:`BODY_PROJECTION_MAX_GAIN`) the
     least-fluctuation weights stand in (:func:`_least_fluctuation_weights`), and failing those None.
@@ -91,12 +92,9 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     if clip_level is not None and np.size(clip_level) not in (1, 3):
         raise ValueError(f"clip_level: need 1 or 3 numbers, got {clip_level!r}")
     clip = np.full(3, np.inf) if clip_level is None else per_channel(clip_level)
-    # a channel within the margin of its clip may be clipped under the noise: no body colour, censored
     level = clip if censor_margin is None else clip - per_channel(censor_margin)
     clipped = v >= level  # (H, W, 3)
     unclipped = ~clipped.any(axis=2)
-    # the body colours only where no 8-neighbour is clipped: inside a clipped area an unclipped reading
-    # is a clipped channel's low noise draw, whose colour is no body colour
     clear = ~require("scipy.ndimage").maximum_filter(~unclipped, size=3, mode="constant", cval=False)
     edge = v[(_border_band(v.shape[:2]) if ring is None else ring) & clear]
     if len(edge) < 3:

@@ -228,7 +228,8 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
         same = "border" if plain.projection == "body_colours" else plain.projection
         both = _fit_projections(*fit, replace(s, projection=same, two_channels=True,
                                               start_normal=plain.normal, start_roughness=plain.roughness))
-        return _two_channel_choice(both, plain)
+        return _two_channel_choice(both, plain, lambda: _fit_projections(
+            *fit, replace(s, projection="darkest_channel", two_channels=False)))
     first = _fit_lobes(*fit, replace(s, n_start_depths=0))
     best = first
     if rgb and first.status in ("depth_not_observable", "not_converged"):
@@ -357,7 +358,7 @@ def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool
         return values, None, lower, missing, f"{text} (w = {weights})", how
     c, clip = _darkest(rgb, clip_level, margin)
     why = (f"channel {c} (the {how.replace('_', ' ')} projection's valued pixels show no lobe: a channel it "
-           "weighs negatively clipped over it)" if hidden else
+           "weighs negatively clipped over it)" if hidden else f"channel {c}" if projection == "darkest_channel" else
            f"channel {c} (no two body colours to project out: the border holds one, or white lies too near them)")
     return rgb[..., c], clip, None, None, why, "darkest_channel"
 
@@ -381,11 +382,14 @@ def _one_channel_clipped(rgb, clip_level) -> bool:
     return clip_level is not None and bool(np.any(np.count_nonzero(np.asarray(rgb) >= per_channel(clip_level), 2) == 1))
 
 
-def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> LightAwareEstimate:
+def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate, darkest=None) -> LightAwareEstimate:
     """``both`` (one-channel-clipped pixels valued from two channels) or ``plain`` (without them):
     ``both`` where both are ``ok`` on a projection, its normal sigma smaller, and they agree as a
     Hausman test asks (J. A. Hausman, Econometrica 46(6), 1978, https://doi.org/10.2307/1913827):
-    angle and depth gaps within ``TWO_CHANNEL_Z`` times ``sqrt(sigma_plain^2 - sigma_both^2)``."""
+    angle and depth gaps within ``TWO_CHANNEL_Z`` times ``sqrt(sigma_plain^2 - sigma_both^2)``.
+    Where they disagree one of them misreads the lobe (the two channels a textured tissue's second
+    colour, or ``plain`` the lobe's core, whose pixels it lost), and ``darkest()``, the darkest
+    channel's fit, which needs neither, stands in where it is ``ok`` (``plain`` without it)."""
     if not (plain.status == "ok" and both.status == "ok" and plain.has_normal and both.has_normal
             and both.projection in ("body_colours", "least_fluctuation")):
         return plain  # (on one channel no pixel is valued from two)
@@ -398,7 +402,10 @@ def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate) -> 
     dgap = abs(float(both.depth_mm) - float(plain.depth_mm))
     droom = TWO_CHANNEL_Z * math.sqrt(max(dp * dp - db * db, 0.0))
     if not (gap <= room and dgap <= droom):
-        return plain
+        chan = None if darkest is None else darkest()
+        return plain if chan is None or not chan.ok else _note(chan, (
+            f"the fits with and without the pixels clipped in one channel disagree ({gap:.2g} deg and {dgap:.2g} mm "
+            f"apart, beyond {room:.2g} deg and {droom:.2g} mm)"))
     return _note(both, f"pixels clipped in one channel valued from the other two (the fit without them "
                        f"agrees: {gap:.2g} deg and {dgap:.2g} mm apart, within {room:.2g} deg and {droom:.2g} mm)")
 
