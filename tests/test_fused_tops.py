@@ -31,6 +31,7 @@ from simtest.harness.metrics import MATCH_PX as HARNESS_MATCH_PX
 from simtest.geometry.response import srgb_encode
 from simtest.reconstruct.rig_lobes import (
     _on_the_tops,
+    _roi_index,
     _tops_depth,
     guide_specular_points,
 )
@@ -488,3 +489,20 @@ def test_broad_weak_lobes_of_the_papers_roughness_get_light_aware_normals(tmp_pa
         # moves the top of a wide lobe by several px (here 5.9), within the harness's match radius
         assert d <= HARNESS_MATCH_PX, (uv, d, s["status"])
         assert s["normal_from"] == "photometric_fit" and _error_deg(s, n) <= MEDIAN_MAX_DEG, (s["status"], s["detail"])
+
+
+@settings(max_examples=60, deadline=None)
+@given(pts=st.lists(st.tuples(st.sampled_from([np.nan, np.inf, -3.6, -0.5, 0.0, 0.49, 0.5, 2.5, 7.49, 7.5, 11.2]),
+                              st.sampled_from([np.nan, -1.0, 0.0, 3.5, 4.49, 5.5, 6.0, 9.7])), max_size=12),
+       origin=st.tuples(st.integers(-3, 3), st.integers(-3, 3)))
+def test_the_roi_index_is_each_points_rounded_pixel_on_the_array(pts, origin):
+    # exact, point by point: a finite point's pixel is its (v, u) rounded half to even, less the ROI's
+    # (row, col) origin; it counts where that pixel lies on the (6, 8) array, a non-finite point never
+    rc, ok = _roi_index(np.array(pts, np.float64).reshape(-1, 2), (6, 8), origin)
+    assert rc.shape == (len(pts), 2) and ok.shape == (len(pts),)
+    for (u, v), got, inside in zip(pts, rc, ok):
+        finite = np.isfinite(u) and np.isfinite(v)
+        want = (int(np.rint(v)) - origin[0], int(np.rint(u)) - origin[1]) if finite else None
+        assert inside == (finite and 0 <= want[0] < 6 and 0 <= want[1] < 8)
+        if inside:
+            assert tuple(got) == want
