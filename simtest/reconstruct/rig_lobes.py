@@ -178,7 +178,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
         # no point within PAIR_TOL_PX of the tops: it fitted something else (a weaker lobe may not clip)
         off = cv2.distanceTransform(np.pad((~_tops(gray, region)).astype(np.uint8), 1, constant_values=1),
                                     cv2.DIST_L2, 5)[1:-1, 1:-1]
-        rc = np.rint(uv_to_rc(p)).astype(np.int64) - (region[1], region[2])
+        rc = _roi_index(p, off.shape, region[1:])[0]  # (p: points inside the region)
         if (off[rc[:, 0], rc[:, 1]] > PAIR_TOL_PX).all():
             return None
         if pair is not None and not all(_on_a_top(p, pair[1], [t], region[1:]) for t in pair[2]):
