@@ -21,9 +21,9 @@ row where the candidate's own plane fit puts both points back: a weak lobe whose
 A candidate with no closed isophote to measure its BP's wander (a lobe the frame cuts; a pale lobe rejected as
 ``not_specular``) is the other guide's where its bright region holds that point, its own fit's too.
 
-Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops where
-the rig pairs them gives one row per top at its centroid, with the plane the two fix as a stereo
-pair (``rig_pair``, :func:`~simtest.reconstruct.rig_pairs.pair_plane`).
+Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each of at least
+:data:`~simtest.decisions.MIN_AREA_PX`) where the rig pairs them gives one row per top at its centroid, with the plane
+the two fix as a stereo pair (``rig_pair``, :func:`~simtest.reconstruct.rig_pairs.pair_plane`).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import numpy as np
 
 from simtest._threads import one_thread_each
 from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH,
-                               PAIR_TOL_PX, TOP_CORE_SHARE, TOPS_PLACE_SIGMA_PX)
+                               MIN_AREA_PX, PAIR_TOL_PX, TOP_CORE_SHARE, TOPS_PLACE_SIGMA_PX)
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import NOT_FITTED, PLANE_ONLY, _offset_rig, light_aware_estimates
@@ -198,14 +198,15 @@ def _row(est, camera, uv: np.ndarray, what: str, how: str, **fields):
 
 
 def _tops_pair(gray: np.ndarray, region, camera, rig):
-    """The region's two largest clipped tops where the rig pairs them: ``(centroids (2, 2), labels, the
-    two labels, pair_plane's result)``, or None.
-    """
+    """The region's two largest clipped tops (of at least :data:`~simtest.decisions.MIN_AREA_PX`, the smallest highlight
+    detection takes: one pixel clipped by noise on a lobe's tail is no specular point) where the rig pairs them:
+    ``(centroids (2, 2), labels, the two labels, pair_plane's result)``, or None."""
     mask, r0, c0 = region
-    n, labels, stats, centroids = cv2.connectedComponentsWithStats(_tops(gray, region).astype(np.uint8), connectivity=8)
-    if n < 3:
+    _, labels, stats, centroids = cv2.connectedComponentsWithStats(_tops(gray, region).astype(np.uint8), connectivity=8)
+    tops = 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= MIN_AREA_PX)
+    if len(tops) < 2:
         return None
-    two = 1 + np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable")[:2]
+    two = tops[np.argsort(-stats[tops, cv2.CC_STAT_AREA], kind="stable")[:2]]
     x, y, w, h = (stats[two, k] for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT))
     if (x == 0).any() or (y == 0).any() or (x + w == mask.shape[1]).any() or (y + h == mask.shape[0]).any():
         return None  # a top the ROI cuts: its centroid is not its guide's specular point
@@ -226,8 +227,7 @@ def _places_the_pair(uv: np.ndarray, pair, origin) -> bool:
     :data:`~simtest.decisions.TOP_CORE_SHARE` of its largest distance from its edge (a large top's
     centroid is off its specular point)."""
     centres, labels, two, _ = pair
-    uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    uv = uv[np.isfinite(uv).all(axis=1)]
+    uv = (uv := np.asarray(uv, np.float64).reshape(-1, 2))[np.isfinite(uv).all(axis=1)]
     if not len(uv):
         return False
     if (np.linalg.norm(centres[:, None] - uv[None], axis=-1).min(axis=1) <= PAIR_TOL_PX).all():
