@@ -634,7 +634,8 @@ TWO_CHANNEL_Z = decision(
     "TWO_CHANNEL_Z", 2.0, "standard deviations of a fit difference",
     "The fit with pixels valued from two channels is kept while it agrees with the one without "
     "within 2 sigma (about 95 %); beyond, one of them misreads the lobe and the darkest channel's "
-    "fit stands in.", basis="physics", stage=_L)
+    "fit referees: the more precise of the two that agrees with it as closely, else it stands in.",
+    basis="physics", stage=_L)
 ON_PLANE_MM = decision(
     "ON_PLANE_MM", 0.1, "mm",
     "A light within this distance of the fitted tangent plane is on it: the specular point lies "

@@ -90,41 +90,55 @@ def _tilted(deg):
     return np.array([np.sin(np.radians(deg)), 0.0, -np.cos(np.radians(deg))])
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=300, deadline=None)
 @given(plain_status=st.sampled_from(["ok", "depth_not_observable", "plane_misfit"]),
        both_status=st.sampled_from(["ok", "depth_not_observable"]),
        sp=st.floats(0.01, 5.0), sb=st.floats(0.01, 5.0), gap=st.floats(0.0, 10.0),
-       dp=st.floats(0.01, 5.0), db=st.floats(0.01, 5.0), dgap=st.floats(0.0, 10.0))
+       dp=st.floats(0.01, 5.0), db=st.floats(0.01, 5.0), dgap=st.floats(0.0, 10.0),
+       chan_fit=st.tuples(st.floats(-10.0, 10.0), st.floats(0.01, 5.0), st.floats(-10.0, 10.0), st.floats(0.01, 5.0)))
 def test_the_two_channel_fit_is_kept_only_where_the_plain_one_is_ok_and_agrees(
-        plain_status, both_status, sp, sb, gap, dp, db, dgap):
+        plain_status, both_status, sp, sb, gap, dp, db, dgap, chan_fit):
     plain = _est(plain_status, _tilted(0.0), sp, 20.0 if plain_status == "ok" else None,
                  dp if plain_status == "ok" else None)
     both = _est(both_status, _tilted(gap), sb, 20.0 + dgap if both_status == "ok" else None,
                 db if both_status == "ok" else None)
     got = lap._two_channel_choice(both, plain)
-    room = lap.TWO_CHANNEL_Z * np.sqrt(max(sp * sp - sb * sb, 0.0))
-    droom = lap.TWO_CHANNEL_Z * np.sqrt(max(dp * dp - db * db, 0.0))
-    g = angle_between_deg(both.normal, plain.normal)  # the normals' angle as computed
     margin = 1e-9  # away from the bounds by more than the arithmetic's rounding
-    kept = (plain_status == both_status == "ok" and sb < sp and g <= room - margin and dgap <= droom - margin)
-    refused = (not (plain_status == both_status == "ok") or not sb < sp or g > room + margin
-               or dgap > droom + margin)
+
+    def agree(eff, other):  # the Hausman test, eff the more precise: -1 apart, 1 agree, 0 at a bound
+        room = lap.TWO_CHANNEL_Z * np.sqrt(max(other.normal_sigma_deg ** 2 - eff.normal_sigma_deg ** 2, 0.0))
+        droom = lap.TWO_CHANNEL_Z * np.sqrt(max(other.depth_sigma_mm ** 2 - eff.depth_sigma_mm ** 2, 0.0))
+        g, d = angle_between_deg(eff.normal, other.normal), abs(eff.depth_mm - other.depth_mm)
+        return 1 if g <= room - margin and d <= droom - margin else -1 if g > room + margin or d > droom + margin else 0
+
+    ok_both = plain_status == both_status == "ok" and sb < sp
+    kept = ok_both and agree(both, plain) == 1
     if kept:
         assert got.normal is both.normal and "valued from the other two" in got.detail
-    if refused:
+    if not ok_both or agree(both, plain) == -1:
         assert got is plain  # unchanged: the fit without those pixels, as before they were valued
-    # where both are ok and more precise but disagree, the darkest channel's fit stands in where
-    # it is ok (one of the two misread the lobe), else the plain one; elsewhere it is never fitted
-    disagree = plain_status == both_status == "ok" and sb < sp and (g > room + margin or dgap > droom + margin)
+    # where both are ok and more precise but disagree, the darkest channel's fit referees where it
+    # is ok (one of the two misread the lobe): the more precise of the two that agrees with it by
+    # the same test, else it stands in; not ok, the plain one; elsewhere it is never fitted
+    disagree = ok_both and agree(both, plain) == -1
     calls = []
+    cgap, sc, cdep, dc = chan_fit
     for chan_status in ("ok", "plane_misfit"):
-        chan = _est(chan_status, _tilted(0.5), 0.2, 21.0, 0.5, projection="darkest_channel")
+        chan = _est(chan_status, _tilted(cgap), sc, 20.0 + cdep, dc, projection="darkest_channel")
         got = lap._two_channel_choice(both, plain, lambda c=chan: calls.append(c) or c)
-        if disagree:
-            assert (got.normal is chan.normal and "disagree" in got.detail) if chan_status == "ok" else got is plain
+        if disagree and chan_status != "ok":
+            assert got is plain
+        if disagree and chan_status == "ok":
+            assert "disagree" in got.detail
+            if agree(both, chan) == 1:
+                assert got.normal is both.normal and "agrees with the one with them" in got.detail
+            elif agree(both, chan) == -1 and agree(plain, chan) == 1:
+                assert got.normal is plain.normal and "agrees with the one without them" in got.detail
+            elif agree(both, chan) == -1 and agree(plain, chan) == -1:
+                assert got.normal is chan.normal
         if kept:
             assert got.normal is both.normal and not calls
-        if not (plain_status == both_status == "ok") or not sb < sp:
+        if not ok_both:
             assert got is plain and not calls
     # on one channel (no projection) no pixel was valued from two: the plain fit, whatever else
     one = _est("ok", _tilted(0.0), 0.1 * sp, 20.0, 0.1 * dp, projection="darkest_channel")

@@ -389,25 +389,37 @@ def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate, dar
     angle and depth gaps within ``TWO_CHANNEL_Z`` times ``sqrt(sigma_plain^2 - sigma_both^2)``.
     Where they disagree one of them misreads the lobe (the two channels a textured tissue's second
     colour, or ``plain`` the lobe's core, whose pixels it lost), and ``darkest()``, the darkest
-    channel's fit, which needs neither, stands in where it is ``ok`` (``plain`` without it)."""
+    channel's fit, which needs neither, referees where it is ``ok``: the more precise of the two that
+    agrees with it by the same test, else it stands in (``plain`` without it)."""
     if not (plain.status == "ok" and both.status == "ok" and plain.has_normal and both.has_normal
             and both.projection in ("body_colours", "least_fluctuation")):
         return plain  # (on one channel no pixel is valued from two)
-    sp, sb = plain.normal_sigma_deg, both.normal_sigma_deg
-    dp, db = plain.depth_sigma_mm, both.depth_sigma_mm
-    if None in (sp, sb, dp, db, plain.depth_mm, both.depth_mm) or not sb < sp:
+    if None in (plain.normal_sigma_deg, both.normal_sigma_deg, plain.depth_sigma_mm, both.depth_sigma_mm,
+                plain.depth_mm, both.depth_mm) or not both.normal_sigma_deg < plain.normal_sigma_deg:
         return plain  # (no more precise: nothing gained)
-    gap = float(angle_between_deg(both.normal, plain.normal))
-    room = TWO_CHANNEL_Z * math.sqrt(max(sp * sp - sb * sb, 0.0))
-    dgap = abs(float(both.depth_mm) - float(plain.depth_mm))
-    droom = TWO_CHANNEL_Z * math.sqrt(max(dp * dp - db * db, 0.0))
-    if not (gap <= room and dgap <= droom):
-        chan = None if darkest is None else darkest()
-        return plain if chan is None or not chan.ok else _note(chan, (
-            f"the fits with and without the pixels clipped in one channel disagree ({gap:.2g} deg and {dgap:.2g} mm "
-            f"apart, beyond {room:.2g} deg and {droom:.2g} mm)"))
-    return _note(both, f"pixels clipped in one channel valued from the other two (the fit without them "
-                       f"agrees: {gap:.2g} deg and {dgap:.2g} mm apart, within {room:.2g} deg and {droom:.2g} mm)")
+    agree, apart = _hausman(both, plain)
+    if agree:
+        return _note(both, "pixels clipped in one channel valued from the other two (the fit without them "
+                           f"agrees: {apart.format('within')})")
+    chan = None if darkest is None else darkest()
+    if chan is None or not chan.ok:
+        return plain
+    why = f"the fits with and without the pixels clipped in one channel disagree ({apart.format('beyond')})"
+    sure = None not in (chan.normal_sigma_deg, chan.depth_sigma_mm, chan.depth_mm)
+    for e, how in ((both, "with"), (plain, "without")):  # (both the more precise)
+        if sure and _hausman(e, chan)[0]:
+            return _note(e, f"{why}; the darkest channel's fit agrees with the one {how} them")
+    return _note(chan, why)
+
+
+def _hausman(eff: LightAwareEstimate, other: LightAwareEstimate) -> tuple[bool, str]:
+    """Whether two fits agree as :func:`_two_channel_choice`'s test asks (``eff`` the more precise), and how
+    far apart they lie against the rooms ``TWO_CHANNEL_Z sqrt(sigma_other^2 - sigma_eff^2)`` (deg, mm)."""
+    gap, dgap = float(angle_between_deg(eff.normal, other.normal)), abs(float(eff.depth_mm) - float(other.depth_mm))
+    room, droom = (TWO_CHANNEL_Z * math.sqrt(max(o * o - e * e, 0.0)) for o, e in (
+        (other.normal_sigma_deg, eff.normal_sigma_deg), (other.depth_sigma_mm, eff.depth_sigma_mm)))
+    return gap <= room and dgap <= droom, f"{gap:.2g} deg and {dgap:.2g} mm apart, {{}} {room:.2g} deg and " \
+                                          f"{droom:.2g} mm"
 
 
 def _bic(est: LightAwareEstimate) -> float:
