@@ -521,6 +521,17 @@ FUSED_TOPS_STRETCH = decision(
     "Clipped tops this much longer along the rig's curve than wide hold two guides' lobes: one top is 2 r each "
     "way, two tops s apart are s + 2 r long, longer by half from s = r, where they begin to fuse. Two guides "
     "only: three or more make a polygon of tops, as wide as long.", basis="physics", stage=_L)
+PEAK_SMOOTH_SIGMA_PX = decision(
+    "PEAK_SMOOTH_SIGMA_PX", 1.0, "px (Gaussian sigma)",
+    "Two guides' unclipped lobes fused into one region are told apart on the luma smoothed over a "
+    "pixel: it parts a sensor's white noise by sqrt(4 pi) (a dip between two smoothed pixels by "
+    "sqrt(2 pi)), and moves a lobe's peak by under 0.1 px for lobes of 3 px sigma or more.",
+    basis="physics", stage=_L)
+PEAK_TOP_SHARE = decision(
+    "PEAK_TOP_SHARE", 0.5, "share of the dip between two peaks, above the valley",
+    "Each of two fused unclipped lobes' tops is the region above this share of the dip between "
+    "their peaks: halfway, as far from the valley's saddle, where the tops join, as from the "
+    "peaks' noise; the tops' centroids place the lobes.", basis="convention", stage=_L)
 
 # --- JPEG noise model (verification) -----------------------------------------------------------------
 

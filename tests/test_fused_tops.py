@@ -532,3 +532,50 @@ def test_clipped_noise_pixels_beside_one_fused_top_leave_the_joint_fits_split():
     for row, p in zip(rows, truth):
         # the rows at the joint fit's specular points, with its normal
         assert np.linalg.norm(row.bp_px - p) < 1e-6 and row.recommended.normal_from == "photometric_fit", row.detail
+
+
+def _unclipped_lobes(seed: int, lobes: int):
+    """``lobes`` (1 or 2) Gaussian guide lobes (sigma 17 px, 0.6 above a 0.3 background, unclipped) at
+    the specular points of :func:`_two_clipped_tops`' plane, white noise of 0.01, and a candidate at
+    the first whose joint fit holds the normal but not the distance: ``(image, K, rig, candidate,
+    specular points)``."""
+    import dataclasses
+
+    from simtest.reconstruct.lightaware import LightAwareEstimate
+
+    _, K, rig, N, h, truth = _two_clipped_tops()
+    v, u = np.mgrid[0:240, 0:240].astype(float)
+    img = 0.3 + sum(0.6 * np.exp(-((u - p[0]) ** 2 + (v - p[1]) ** 2) / 578.0) for p in truth[:lobes])
+    img = img + np.random.default_rng(seed).normal(0.0, 0.01, img.shape)
+    lo, hi = np.floor(truth.min(axis=0)).astype(int) - 45, np.ceil(truth.max(axis=0)).astype(int) + 45
+    fit = LightAwareEstimate("photometric_fit", "depth_not_observable", "", N, normal_sigma_deg=0.3)
+    est = _candidate(K, truth[0], (lo[1], hi[1], lo[0], hi[0]), "merged", fit)
+    return img, K, rig, dataclasses.replace(est, saturated=False, bp_intensity=float(img.max())), truth
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_unclipped_fused_lobes_whose_fit_has_no_depth_are_placed_on_their_peaks(seed):
+    # two guides' unclipped lobes 50 px apart fused above half their height (the valley between
+    # them 0.19 below the peaks, 48 sigmas of its noise): the joint fit holds the normal only, and the
+    # distance that puts one guide's specular point on each peak gives both rows (the read-noise
+    # and JPEG frames of the endoscope suite's flat mucosa, whose second guide went undetected)
+    from simtest.reconstruct.rig_lobes import split_fused_lobes
+
+    img, K, rig, est, truth = _unclipped_lobes(seed, 2)
+    rows = split_fused_lobes(img, [est], K, rig, prefitted={0})
+    assert len(rows) == 2, [r.detail for r in rows]
+    for row, p in zip(rows, truth):
+        # each peak 0.7 px inward (the other lobe's slope) and to a pixel (the noise): the pair
+        # placed within PAIR_TOL_PX of them
+        assert np.linalg.norm(row.bp_px - p) < 2.0 and row.status == "ok", (row.bp_px, p)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_one_unclipped_lobe_whose_fit_has_no_depth_is_not_split(seed):
+    # one lobe only: its noise gives local maxima but no valley of SIGNIFICANCE_MIN sigmas between
+    # two of them, so no distance is chosen and the candidate stays one row
+    from simtest.reconstruct.rig_lobes import split_fused_lobes
+
+    img, K, rig, est, _ = _unclipped_lobes(seed, 1)
+    rows = split_fused_lobes(img, [est], K, rig, prefitted={0})
+    assert len(rows) == 1 and rows[0].status == "merged", [r.detail for r in rows]

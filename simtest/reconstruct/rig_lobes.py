@@ -35,9 +35,10 @@ import numpy as np
 
 from simtest._threads import one_thread_each
 from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH,
-                               MIN_AREA_PX, PAIR_TOL_PX, TOP_CORE_SHARE, TOPS_PLACE_SIGMA_PX)
+                               MIN_AREA_PX, PAIR_TOL_PX, PEAK_SMOOTH_SIGMA_PX, PEAK_TOP_SHARE,
+                               SIGNIFICANCE_MIN, TOP_CORE_SHARE, TOPS_PLACE_SIGMA_PX)
 from simtest.reconstruct._pixels import uv_to_rc
-from simtest.reconstruct.detect_pixels import luma
+from simtest.reconstruct.detect_pixels import luma, noise_sigma
 from simtest.reconstruct.light_fits import NOT_FITTED, PLANE_ONLY, _offset_rig, light_aware_estimates
 from simtest.reconstruct.lightaware import LightAwareEstimate
 from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wander_px, guide_specular_points,
@@ -148,6 +149,42 @@ def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     return pts[int(best[len(best) // 2])]
 
 
+def _on_the_peaks(gray: np.ndarray, region, camera, rig, normal) -> np.ndarray | None:
+    """:func:`_on_the_tops` for two guides' unclipped lobes: their tops are the region's two brightest
+    peaks (luma smoothed by :data:`~simtest.decisions.PEAK_SMOOTH_SIGMA_PX`; local maxima farther apart
+    than :data:`~simtest.decisions.PAIR_TOL_PX`) above :data:`~simtest.decisions.PEAK_TOP_SHARE` of the
+    valley between them, where it is deeper than :data:`~simtest.decisions.SIGNIFICANCE_MIN` sigmas of
+    its noise (two lobes, not one lobe's noise). The points (2, 2) at the distance h that puts one within
+    ``PAIR_TOL_PX`` of each top's centroid (which noise moves less than the maximum), least apart in
+    sum; None where none does."""
+    mask, r0, c0 = region
+    sub = gray[r0:r0 + mask.shape[0], c0:c0 + mask.shape[1]].astype(np.float32)
+    sm = cv2.GaussianBlur(sub, (0, 0), PEAK_SMOOTH_SIGMA_PX)
+    k = 2 * int(np.ceil(PAIR_TOL_PX)) + 1
+    rc = np.argwhere(mask & (sm >= cv2.dilate(sm, np.ones((k, k), np.uint8))))
+    rc = rc[np.argsort(-sm[rc[:, 0], rc[:, 1]], kind="stable")]
+    far = np.flatnonzero(np.linalg.norm(rc - rc[:1], axis=1) > PAIR_TOL_PX) if len(rc) else []
+    if not len(far) or min(sub.shape) < 3:
+        return None
+    two = rc[[0, far[0]]]
+    line = np.rint(np.linspace(two[0], two[1], int(np.ceil(np.linalg.norm(two[1] - two[0]))) + 1)).astype(int)
+    valley = float(sm[line[:, 0], line[:, 1]].min())
+    dip = float(sm[two[1, 0], two[1, 1]]) - valley
+    # the dip's noise: two white-noise pixels through the Gaussian, sigma sqrt(2 / (4 pi)) / s of a pixel's
+    if not dip > SIGNIFICANCE_MIN * noise_sigma(sub) / (np.sqrt(2 * np.pi) * PEAK_SMOOTH_SIGMA_PX):
+        return None
+    labels = cv2.connectedComponents((mask & (sm >= valley + PEAK_TOP_SHARE * dip)).astype(np.uint8), connectivity=8)[1]
+    tops = labels[two[:, 0], two[:, 1]]
+    if tops[0] == tops[1]:
+        return None
+    uv = np.array([np.argwhere(labels == t).mean(axis=0)[::-1] for t in tops]) + (c0, r0)  # the tops' centroids
+    pts = _specular_points(camera, rig, normal, _TOPS_H_GRID)  # (M, 2, 2)
+    d = np.linalg.norm(pts[:, :, None] - uv[None, None], axis=-1)  # (M, guide, top)
+    cost = np.minimum(d[:, 0, 0] + d[:, 1, 1], d[:, 0, 1] + d[:, 1, 0])  # one guide on each top
+    on = np.minimum(np.maximum(d[:, 0, 0], d[:, 1, 1]), np.maximum(d[:, 0, 1], d[:, 1, 0])) <= PAIR_TOL_PX
+    return pts[np.flatnonzero(on)[np.argmin(cost[on])]] if on.any() else None
+
+
 def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | None:
     """The rows of one fitted candidate's fused lobes (module docstring), or None."""
     fit = (est.light_aware or {}).get("photometric_fit")
@@ -155,9 +192,10 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
         return None
     if fit.distance_mm is not None:
         pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
-    elif fit.status == "depth_not_observable" and est.saturated and len(rig.positions) > 1:
-        # the fit holds the normal but not the distance: the h that centres the points on the tops
-        pts = _on_the_tops(_tops_depth(gray, region), region, camera, rig, fit.normal)
+    elif fit.status == "depth_not_observable" and len(rig.positions) > (1 if est.saturated else 0):
+        # the fit holds the normal but not the distance: the h that centres the points on the tops (peaks)
+        pts = (_on_the_tops(_tops_depth(gray, region), region, camera, rig, fit.normal) if est.saturated
+               else _on_the_peaks(gray, region, camera, rig, fit.normal) if len(rig.positions) == 2 else None)
         if pts is None:
             return None
     else:
