@@ -155,7 +155,7 @@ def _on_the_peaks(gray: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     than :data:`~simtest.decisions.PAIR_TOL_PX`) above :data:`~simtest.decisions.PEAK_TOP_SHARE` of the
     valley between them, where it is deeper than :data:`~simtest.decisions.SIGNIFICANCE_MIN` sigmas of
     its noise (two lobes, not one lobe's noise). The points (2, 2) at the distance h that puts one within
-    ``PAIR_TOL_PX`` of each top's centroid (which noise moves less than the maximum), least apart in
+    ``PAIR_TOL_PX`` of each top's centroid (which noise moves less than the maximum), nearest them in
     sum; None where none does."""
     mask, r0, c0 = region
     sub = gray[r0:r0 + mask.shape[0], c0:c0 + mask.shape[1]].astype(np.float32)
@@ -192,7 +192,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
         return None
     if fit.distance_mm is not None:
         pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
-    elif fit.status == "depth_not_observable" and len(rig.positions) > (1 if est.saturated else 0):
+    elif fit.status == "depth_not_observable" and len(rig.positions) > 1:
         # the fit holds the normal but not the distance: the h that centres the points on the tops (peaks)
         pts = (_on_the_tops(_tops_depth(gray, region), region, camera, rig, fit.normal) if est.saturated
                else _on_the_peaks(gray, region, camera, rig, fit.normal) if len(rig.positions) == 2 else None)
