@@ -173,11 +173,12 @@ def _on_the_peaks(gray: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     # the dip's noise: two white-noise pixels through the Gaussian, sigma sqrt(2 / (4 pi)) / s of a pixel's
     if not dip > SIGNIFICANCE_MIN * noise_sigma(sub) / (np.sqrt(2 * np.pi) * PEAK_SMOOTH_SIGMA_PX):
         return None
-    labels = cv2.connectedComponents((mask & (sm >= valley + PEAK_TOP_SHARE * dip)).astype(np.uint8), connectivity=8)[1]
+    _, labels, _, centroids = cv2.connectedComponentsWithStats((mask & (sm >= valley + PEAK_TOP_SHARE * dip)).astype(
+        np.uint8), connectivity=8)
     tops = labels[two[:, 0], two[:, 1]]
     if tops[0] == tops[1]:
         return None
-    uv = np.array([np.argwhere(labels == t).mean(axis=0)[::-1] for t in tops]) + (c0, r0)  # the tops' centroids
+    uv = centroids[tops] + (c0, r0)  # the tops' centroids (u, v)
     pts = _specular_points(camera, rig, normal, _TOPS_H_GRID)  # (M, 2, 2)
     d = np.linalg.norm(pts[:, :, None] - uv[None, None], axis=-1)  # (M, guide, top)
     cost = np.minimum(d[:, 0, 0] + d[:, 1, 1], d[:, 0, 1] + d[:, 1, 0])  # one guide on each top
@@ -265,7 +266,8 @@ def _places_the_pair(uv: np.ndarray, pair, origin) -> bool:
     :data:`~simtest.decisions.TOP_CORE_SHARE` of its largest distance from its edge (a large top's
     centroid is off its specular point)."""
     centres, labels, two, _ = pair
-    uv = (uv := np.asarray(uv, np.float64).reshape(-1, 2))[np.isfinite(uv).all(axis=1)]
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    uv = uv[np.isfinite(uv).all(axis=1)]
     if not len(uv):
         return False
     if (np.linalg.norm(centres[:, None] - uv[None], axis=-1).min(axis=1) <= PAIR_TOL_PX).all():
