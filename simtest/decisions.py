@@ -376,7 +376,9 @@ CONTRAST_MIN = decision(
     "A specular lobe multiplies the irradiance and fills most of the room (background, or the "
     "headroom above it where smaller); a lighter patch of tissue adds tens of percent. The "
     "isolated lobes of the endoscope suite's renders fill 0.75 to 1, the tip of a broad sheen "
-    "0.56 to 0.58; on the labelled banner a bar of 0.6 rather than 0.5 refuses 11 ok estimates.",
+    "0.56 to 0.58; on the labelled banner a bar of 0.6 rather than 0.5 refuses 11 ok estimates. Under a rig "
+    "of separate guides a white peak with its rig twin is exempt where its light-aware fit finds its plane "
+    "with a depth: what the bar asks of the peak's height, the rig's geometry and the fit then show.",
     basis="tuned", stage=_V, chosen_on=("suite-endoscope", "banner-labelled"),
     n="endoscope suite renders at seed 0; 180 ok estimates of 24 banner frames")
 PANEL_STD_REL = decision(

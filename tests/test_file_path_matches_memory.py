@@ -2,9 +2,10 @@
 
 ``simtest render`` writes ``image.png`` and ``camera.json``; ``simtest reconstruct IMAGE
 --intrinsics camera.json`` must then give exactly the estimates that
-:func:`simtest.reconstruct.reconstruct` gives on the rendered array with the rendered camera model,
-each with its defaults. Any difference (a lossy write, a camera parameter rounded on its way through
-the file, defaults that differ between the CLI and the function) shows up as an inequality.
+:func:`simtest.reconstruct.reconstruct` and the rig's step (``light_aware_with_rig``) give on the
+rendered array with the rendered camera model and rig, each with its defaults. Any difference (a
+lossy write, a camera parameter rounded on its way through the file, defaults that differ between
+the CLI and the functions) shows up as an inequality.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from simtest.cli import app
 from simtest.geometry.response import video_response
 from simtest.reconstruct import reconstruct
 from simtest.reconstruct.io import estimates_document
-from simtest.reconstruct.light_fits import with_light_aware
+from simtest.reconstruct.rig_centroid import light_aware_with_rig
 from simtest.render import render_scene, write_render
 from simtest.resources import bundled_scene_path
 from simtest.scene import load_scene, scene_from_dict, with_overrides
@@ -43,8 +44,9 @@ def _check_same(tmp_path, spec, min_candidates: int = 0) -> int:
     # the CLI reads the rig from camera.json and runs the light-aware estimators with it, on the
     # linear intensities of the video sensor's response that the file carries
     response = video_response(spec.sensor) if result.video is not None else None
-    memory = with_light_aware(result.sensor, reconstruct(result.sensor, camera), camera,
-                              result.light_rig, response=response)
+    memory = light_aware_with_rig(result.sensor, reconstruct(result.sensor, camera, lights=result.light_rig,
+                                                             response=response), camera, result.light_rig,
+                                  response=response)
     expected = estimates_document(memory, K=getattr(camera, "K", None), image_shape=result.sensor.shape,
                                   camera=camera)
 

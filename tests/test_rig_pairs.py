@@ -350,15 +350,56 @@ def test_a_weak_pale_lobe_beside_the_other_guides_gets_a_light_aware_normal(tmp_
 
 
 def test_a_pale_lobe_rejected_as_not_specular_is_the_row_its_partners_fit_places(tmp_path):
-    # the weak pale lobes above, weaker still (spec 1.0): guide 1's lobe is not_specular (peak chroma 0.64
-    # of the tissue's), with no isophote to say how far its BP wanders; it got the BP ray (4.7 deg). Guide
-    # 2's ok plane fit puts guide 1's specular point inside that candidate's bright region, whose own
-    # plane fit puts it there too and guide 2's back on its BP: that candidate is guide 1's row
-    img, K, n, truth = sensor_plane(6.9, 23.2, 4, spec=1.0, shininess=301.0, size=900, f=520.0, median=0.2625,
-                                    tissue=(0.75, 0.42, 0.36), azimuth_deg=144.3, profile=1.0)
+    # the weak pale lobes above, weaker still (spec 0.8) on tissue whose albedo varies by 30 % over 6 px:
+    # guide 1's lobe is not_specular (its light above the tissue is not white: the texture's, not the
+    # film's, so it is no twin), with no isophote to say how far its BP wanders. Guide 2's ok plane fit
+    # puts guide 1's specular point inside that candidate's bright region, whose own plane fit puts it
+    # there too and guide 2's back on its BP: that candidate is guide 1's row
+    img, K, n, truth = sensor_plane(6.9, 23.2, 4, spec=0.8, shininess=301.0, size=900, f=520.0, median=0.2625,
+                                    tissue=(0.75, 0.42, 0.36), azimuth_deg=144.3, profile=1.0, texture=(0.3, 6.0))
     specs, rows = _frame_rows(tmp_path, img, K, n, truth, profile=1.0)
     assert _every_guide_ok(rows), rows
     assert any("where guide 2's fit puts it (not_specular" in s["detail"] for s in specs if s["status"] == "ok")
+
+
+@pytest.mark.parametrize("spec, shininess", [(0.6, 400.0), (0.45, 400.0), (0.6, 250.0)])
+def test_weak_pale_lobes_each_the_others_rig_twin_get_light_aware_normals(tmp_path, spec, shininess):
+    # unclipped lobes on bright tissue (shading median 0.3 of full scale): each peak fills 0.28 to 0.52 of
+    # the room above its background (CONTRAST_MIN 0.6) and its chroma is 0.65 to 0.74 of the tissue's
+    # (PALENESS_MAX 0.6), so both were not_specular and got the BP ray. Each is the other's rig twin, white
+    # and 18 or more noise sigmas high, and each one's plane fit finds its plane with a depth: both rows
+    img, K, n, truth = sensor_plane(8.0, 20.0, 3, spec=spec, shininess=shininess, size=480, f=220.0, median=0.3,
+                                    tissue=(0.85, 0.5, 0.45), azimuth_deg=30.0)
+    specs, rows = _frame_rows(tmp_path, img, K, n, truth)
+    assert _every_guide_ok(rows), rows
+    for s in (s for s in specs if s["status"] == "ok"):  # every ok row is a highlight
+        assert min(np.hypot(*(np.asarray(s["bp_px"]) - uv)) for uv in truth) <= MATCH_PX, s
+    # one guide in the camera file: no twin where the rig puts none, and neither weak pale peak is ok
+    cam = json.loads((tmp_path / "camera.json").read_text())
+    cam["lights"] = cam["lights"][:1]
+    (tmp_path / "camera.json").write_text(json.dumps(cam))
+    specs = _reconstruct(tmp_path)
+    assert [s for s, _ in _score(specs, truth, n)] == ["not_specular"] * 2, specs
+
+
+def test_a_weak_twin_its_fit_does_not_confirm_is_not_specular(tmp_path):
+    # an outside-style frame (Phong lobes of exponent 40, k_s 0.5, shading median 0.26, 1 % noise, JPEG 90)
+    # of a plane 19.5 mm away under guides 5 mm off the lens: both lobes are weak twins and get their rows.
+    # A JPEG-noise bump on guide 1's broad shoulder, 33 px from its specular point, is white, significant
+    # and has a twin within its reach; its plane fit puts no guide's highlight on its BP, so it is no
+    # highlight (before the check, ok with the BP ray, 11.7 deg off)
+    from phong_frames import phong_frame, reconstruct_frame
+
+    ax = 0.781369274028903
+    guides = np.array([[5 * np.cos(ax), 5 * np.sin(ax), 0.0], [-5 * np.cos(ax), -5 * np.sin(ax), 0.0]])
+    n = _normal(7.971770139197747, 158.03957829751965)
+    img, K, truth = phong_frame(1280, 1024, 420.0, guides, n, 19.52349418440199, 40.0, 0.5, (0.85, 0.5, 0.45),
+                                0.2591844216558598, 0.01, 1020)
+    specs = reconstruct_frame(tmp_path, _jpeg(img, 90), K, guides)
+    assert _every_guide_ok(_score(specs, truth, n))
+    for s in (s for s in specs if s["status"] == "ok"):  # every ok row is a highlight
+        assert min(np.hypot(*(np.asarray(s["bp_px"]) - uv)) for uv in truth) <= 2 * MATCH_PX, s
+    assert any("its plane fit does not confirm" in s["detail"] for s in specs if s["status"] == "not_specular")
 
 
 def test_a_lobe_whose_isophote_the_frames_edge_cuts_gets_its_guides_row(tmp_path):

@@ -38,6 +38,8 @@ REASONS: dict[str, str] = {
     "cluster": "another specular peak lies inside the candidate's isophote region (clustered glints)",
     "bad_fit": "the isophote is no ellipse around the BP: residual too large for its size, or BP outside",
     "low_confidence": "the fit passes every check but its confidence is below min_confidence",
+    "weak_twin": "a weak white peak that passes for its rig twin, until its plane fit confirms it (the rig's step "
+                 "of simtest reconstruct makes it ok or not_specular)",
 }
 
 

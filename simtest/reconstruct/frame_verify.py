@@ -14,7 +14,7 @@ from simtest.reconstruct.detect import background_side_px, luma, noise_sigma
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _is_gray
 from simtest.reconstruct.rig_pairs import rig_twins
-from simtest.reconstruct.verify import assess, bp_checks, confidence, seed_opening, verdict
+from simtest.reconstruct.verify import WEAK_TWIN, assess, bp_checks, confidence, seed_opening, verdict
 
 
 def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
@@ -89,7 +89,7 @@ def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray
     for k, e in enumerate(fit):
         status, detail = (checks[k] if e.ok else (e.status, e.detail))
         fitted = math.isfinite(res[k])  # a confidence for the fitted candidates only
-        if status == OK and fitted and conf[k] < floor:
+        if status in (OK, WEAK_TWIN) and fitted and conf[k] < floor:
             status, detail = "low_confidence", f"confidence {conf[k]:.3f} < min_confidence {floor:g}"
         judged[id(e)] = _replaced(e, status=status, detail=detail, confidence=conf[k] if fitted else None)
     return [judged.get(id(e), e) for e in ests]

@@ -25,15 +25,16 @@ import math
 import numpy as np
 
 from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, PAIR_DEPTH_MAX_MM,
-                               PAIR_DEPTH_MIN_MM)
+                               PAIR_DEPTH_MIN_MM, PAIR_TOL_PX)
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct.detect import default_full_scale
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_light_aware
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
-from simtest.reconstruct.verify import specular_colour_at
+from simtest.reconstruct.verify import WEAK_TWIN, specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
+from simtest.reconstruct.rig_pairs import estimate_wander_px
 from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, guide_specular_points,
                                            partner_rows, split_fused_lobes, splittable)
 
@@ -161,6 +162,10 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     given their centroid light's normal; a list of SpecularityEstimate.
     """
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
+    # a weak twin is ok to the fits and the rig's rules, and stays so where its plane fit confirms the twin
+    mark = f"{WEAK_TWIN}: "
+    estimates = [dataclasses.replace(e, status="ok", detail=mark + e.detail) if e.status == WEAK_TWIN else e
+                 for e in estimates]
     # the frame's luma once for the three steps, where a highlight or a split may read it
     gray = luma(np.asarray(image)) if _offset_rig(rig) and any(map(splittable, estimates)) else None
     split = fused_lobe_candidates(gray, estimates, camera, rig) if gray is not None else []  # fitted in the workers
@@ -172,4 +177,30 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
                               plane_only=split, **kwargs)
     split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray)
-    return rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
+    out = rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
+    weak = [k for k, e in enumerate(out) if e.ok and e.detail.startswith(mark)]
+    if weak:
+        bps = np.array([e.bp_px for e in out], np.float64)
+        reach = PAIR_TOL_PX + np.array([estimate_wander_px(e) for e in out])
+        for k in weak:
+            yes = _twin_confirmed(out[k], k, bps, reach, camera, rig)
+            why = ("which its plane fit confirms" if yes else "which its plane fit does not confirm (no plane with its "
+                   "depth puts a guide's highlight on its BP and another's on another highlight)")
+            out[k] = dataclasses.replace(out[k], status="ok" if yes else "not_specular",
+                                         detail=f"{out[k].detail[len(mark):]}, {why}")
+    return out
+
+
+def _twin_confirmed(est, k: int, bps: np.ndarray, reach: np.ndarray, camera, rig) -> bool:
+    """Whether the plane fit of ``est`` (row ``k`` of the BPs ``bps``), ok with its distance, puts one guide's
+    specular point within ``reach`` of its own BP and another guide's within ``reach`` of another row's BP
+    (``reach``: :data:`~simtest.decisions.PAIR_TOL_PX` plus each BP's wander). The twin that let a weak peak
+    pass is a claim on the rig's geometry, which only such a fit checks (a bump on a lobe's broad shoulder, or a
+    pale spot of texture, can have a twin too)."""
+    fit = (est.light_aware or {}).get("photometric_fit")
+    if not (fit is not None and fit.ok and fit.distance_mm is not None):
+        return False
+    near = np.linalg.norm(guide_specular_points(camera, rig, fit.normal, fit.distance_mm)[:, None] - bps[None],
+                          axis=-1) <= reach[None]  # (guides, rows)
+    own, other = near[:, k], np.delete(near, k, axis=1).any(axis=1)
+    return bool((own[:, None] & other[None, :] & ~np.eye(len(own), dtype=bool)).any())

@@ -10,9 +10,10 @@ A candidate earns ``ok`` when it passes, in order (numbers and their reasons: :m
   :data:`WHITE_SHARE_MIN` of its linear-light excess over the background is white;
 - **a peak above the diffuse level** (``not_specular``): top-hat height at least :data:`SIGNIFICANCE_MIN`
   noise sigmas and :data:`CONTRAST_MIN` of the room the sensor leaves, unless clipped in every channel;
-- under a rig of separate guides, a white peak of that height with a **rig twin** (another such peak where
-  the rig puts another guide's highlight, :func:`~simtest.reconstruct.rig_pairs.rig_twins`) is exempt
-  from the paleness bar (:meth:`Evidence.with_twins`);
+- under a rig of separate guides, a white peak of at least :data:`SIGNIFICANCE_MIN` sigmas with a **rig twin**
+  (another such peak where the rig puts another guide's highlight, :func:`~simtest.reconstruct.rig_pairs.rig_twins`)
+  is exempt from the paleness and contrast bars (:meth:`Evidence.with_twins`); one below the contrast bar is
+  ``weak_twin`` until its plane fit confirms the twin (:data:`WEAK_TWIN`);
 - **isolated** (``cluster``): no other specular peak of at least :data:`NEIGHBOUR_REL` of its height
   beyond :data:`OWN_RADIUS_PX` of the BP (another guide's excepted, :mod:`simtest.reconstruct.rig_pairs`),
   and at most :data:`SURROUND_FRACTION_MAX` of its surround lit by other light;
@@ -94,8 +95,8 @@ class Evidence:
     surround_white : ndarray, optional
         As ``surround``, white light only (None on a grey frame).
     twin : ndarray of bool, optional
-        A white peak that passes the height check lies where the rig puts another guide's highlight
-        (:func:`~simtest.reconstruct.rig_pairs.rig_twins`): the paleness bar is waived.
+        A white peak of significant height lies where the rig puts another guide's highlight
+        (:func:`~simtest.reconstruct.rig_pairs.rig_twins`): the paleness and contrast bars are waived.
     """
 
     chroma_peak: np.ndarray
@@ -132,16 +133,30 @@ class Evidence:
         return np.ones(len(self.height), bool) if self.white_share is None else self.white_share >= WHITE_SHARE_MIN
 
     @property
-    def tall(self) -> np.ndarray:
-        """The height check: clipped, or :data:`SIGNIFICANCE_MIN` and :data:`CONTRAST_MIN`."""
+    def significant(self) -> np.ndarray:
+        """Clipped, or a height of at least :data:`SIGNIFICANCE_MIN` noise sigmas."""
         clipped = np.zeros(len(self.height), bool) if self.clipped is None else np.asarray(self.clipped, bool)
-        return clipped | ((self.significance >= SIGNIFICANCE_MIN) & (self.contrast >= CONTRAST_MIN))
+        return clipped | (self.significance >= SIGNIFICANCE_MIN)
+
+    @property
+    def tall(self) -> np.ndarray:
+        """The height check: clipped, or :data:`SIGNIFICANCE_MIN` and :data:`CONTRAST_MIN`; a twin needs only the
+        first."""
+        clipped = np.zeros(len(self.height), bool) if self.clipped is None else np.asarray(self.clipped, bool)
+        tall = clipped | ((self.significance >= SIGNIFICANCE_MIN) & (self.contrast >= CONTRAST_MIN))
+        return tall if self.twin is None else tall | (self.twin & self.significant)
+
+    @property
+    def weak_twin(self) -> np.ndarray:
+        """A twin that passes the height check below :data:`CONTRAST_MIN`: its light-aware fit must confirm it
+        (:data:`WEAK_TWIN`)."""
+        return np.zeros(len(self.height), bool) if self.twin is None else self.tall & ~replace(self, twin=None).tall
 
     def with_twins(self, twins) -> Evidence:
-        """This evidence with ``twin`` set where ``twins(pool, which)`` (bool (N,)) finds one for the peaks
-        refused for paleness alone (``which``), among the white peaks that pass the height check (``pool``)."""
-        pool = self.white & self.tall
-        which = pool & ~_specular_colour(self.chroma_peak, self.chroma_tissue, self.white_share)
+        """This evidence with ``twin`` set where ``twins(pool, which)`` (bool (N,)) finds one for the peaks refused
+        for paleness or contrast alone (``which``), among the white peaks of significant height (``pool``)."""
+        pool = self.white & self.significant
+        which = pool & ~(_specular_colour(self.chroma_peak, self.chroma_tissue, self.white_share) & self.tall)
         return replace(self, twin=twins(pool, which) if which.any() else np.zeros(len(pool), bool))
 
     @property
@@ -154,6 +169,11 @@ class Evidence:
         """Height over the background, or the headroom above it where smaller."""
         room = np.minimum(self.background, self.full_scale - self.background)
         return self.height / np.maximum(room, 1e-9)
+
+
+#: The status of a peak the height check passed for its rig twin alone (:attr:`Evidence.weak_twin`): ``ok`` only
+#: where its plane fit confirms the twin (:func:`~simtest.reconstruct.rig_centroid.light_aware_with_rig`).
+WEAK_TWIN = "weak_twin"
 
 
 #: The frame-wide passes :func:`shared_passes` keeps: ``key -> (the array, the result)``, or None outside.
@@ -666,7 +686,7 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray, only=
     out: list = [None] * n
     # Python floats (their formatting is several times numpy scalars'), read once per array
     pal, sig, con = ev.paleness.tolist(), ev.significance.tolist(), ev.contrast.tolist()
-    colour, tall = ev.specular_colour.tolist(), ev.tall.tolist()
+    colour, tall, weak = ev.specular_colour.tolist(), ev.tall.tolist(), ev.weak_twin.tolist()
     minor = [math.nan] * n if ev.minor_px is None else np.asarray(ev.minor_px, np.float64).tolist()
     sur = ev.surround if ev.surround_white is None else ev.surround_white
     surround = [math.nan] * n if sur is None else np.asarray(sur, np.float64).tolist()
@@ -700,6 +720,8 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray, only=
         elif minor[k] < MINOR_AXIS_MIN_PX:
             out[k] = ("bad_fit", f"isophote semi-minor axis {minor[k]:.2f} px (< {MINOR_AXIS_MIN_PX} px: "
                                  "narrower than the pixel grid resolves)")
+        elif weak[k]:
+            out[k] = (WEAK_TWIN, f"height {con[k]:.2f} of the room, below {CONTRAST_MIN:g}, passed for its rig twin")
         else:
             out[k] = ("ok", "")
     return out
