@@ -680,7 +680,7 @@ def verdict(ev: Evidence, residual_rel: np.ndarray, bp_inside: np.ndarray, only=
     -------
     list of (str, str) or None
         Status and detail per candidate, the first failing check in the order overlay,
-        not_specular, cluster, bad_fit.
+        not_specular, cluster, bad_fit; ``weak_twin`` where only its rig twin passed its height (:data:`WEAK_TWIN`).
     """
     n = len(ev.height)
     out: list = [None] * n
