@@ -143,7 +143,7 @@ class Evidence:
         """The height check: clipped, or :data:`SIGNIFICANCE_MIN` and :data:`CONTRAST_MIN`; a twin needs only the
         first."""
         clipped = np.zeros(len(self.height), bool) if self.clipped is None else np.asarray(self.clipped, bool)
-        tall = clipped | ((self.significance >= SIGNIFICANCE_MIN) & (self.contrast >= CONTRAST_MIN))
+        tall = self.significant & (clipped | (self.contrast >= CONTRAST_MIN))  # clipped | (significant & contrast)
         return tall if self.twin is None else tall | (self.twin & self.significant)
 
     @property
