@@ -529,6 +529,13 @@ PEAK_SMOOTH_SIGMA_PX = decision(
     "pixel: it parts a sensor's white noise by sqrt(4 pi) (a dip between two smoothed pixels by "
     "sqrt(2 pi)), and moves a lobe's peak by under 0.1 px for lobes of 3 px sigma or more.",
     basis="physics", stage=_L)
+PEAK_SMOOTH_GAP_SHARE = decision(
+    "PEAK_SMOOTH_GAP_SHARE", 1.0 / 6.0, "share of the two specular points' gap D (Gaussian sigma)",
+    "A pale or weak region is two guides' lobes only where its luma dips between their points; smoothed over "
+    "D / 6, two equal lobes of sigma s keep their dip while sqrt(s^2 + (D / 6)^2) < D / 2, i.e. s < 0.47 D (two "
+    "Gaussians dip between them only for D > 2 s), and a pixel's white noise falls by sqrt(4 pi) D / 6: a "
+    "dip of a few grey levels between lobes tens of pixels apart is told from noise.",
+    basis="physics", stage=_L)
 PEAK_TOP_SHARE = decision(
     "PEAK_TOP_SHARE", 0.5, "share of the dip between two peaks, above the valley",
     "Each of two fused unclipped lobes' tops is the region above this share of the dip between "

@@ -17,10 +17,11 @@ def _srgb(s):
     return np.where(s <= 0.0031308, 12.92 * s, 1.055 * np.power(np.maximum(s, 0.0031308), 1 / 2.4) - 0.055)
 
 
-def phong_frame(W, H, f, guides, normal, depth_mm, phong_n, ks, tissue, median, noise, seed):
+def phong_frame(W, H, f, guides, normal, depth_mm, phong_n, ks, tissue, median, noise, seed, white=None):
     """An 8-bit sRGB frame of a plane: per guide, Lambertian shading ``cos / r^2`` in the tissue's colour and a
     white Phong lobe ``ks (R . V)^n / r^2`` (mirror direction R), exposed so that the shading's median is
-    ``median`` of full scale in the tissue's brightest channel, Gaussian noise before the curve, clipped.
+    ``median`` of full scale in the tissue's brightest channel, ``white`` (H, W) added in every channel (linear
+    light, full scale 1), Gaussian noise before the curve, clipped.
     Returns the frame, K and each guide's specular point (u, v) px."""
     K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1.0]])
     h = depth_mm * -normal[2]
@@ -41,6 +42,7 @@ def phong_frame(W, H, f, guides, normal, depth_mm, phong_n, ks, tissue, median, 
         Xs = Lm * (h / -(normal @ Lm))
         truth.append((K @ Xs)[:2] / Xs[2])
     rgb = median / np.median(shade * max(tissue)) * (shade[..., None] * np.asarray(tissue) + ks * lobes[..., None])
+    rgb = rgb if white is None else rgb + np.asarray(white)[..., None]
     s = np.clip(rgb + np.random.default_rng(seed).normal(0, noise, rgb.shape), 0, 1)
     return np.rint(_srgb(s) * 255).astype(np.uint8), K, truth
 

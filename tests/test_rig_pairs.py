@@ -402,6 +402,59 @@ def test_a_weak_twin_its_fit_does_not_confirm_is_not_specular(tmp_path):
     assert any("its plane fit does not confirm" in s["detail"] for s in specs if s["status"] == "not_specular")
 
 
+#: An outside-style plane (Phong n 100, k_s 0.5, shading median 0.27, JPEG-free) 33.4 mm away, tilted 18.8 deg,
+#: under guides 4 mm off the lens, at 640 x 512 (f 237 px): its two pale lobes, 32 px apart, fuse into one region.
+_PALE_FUSED = dict(W=640, H=512, f=237.0, ax=1.8876, tilt=18.7703, az=20.0169, depth=33.3604, phong=100.0,
+                   tissue=(0.7, 0.45, 0.35), median=0.2732)
+
+
+def _pale_fused(ks, noise, seed, white=None):
+    """The :data:`_PALE_FUSED` frame: ``(img, K, n, truth, guides)``."""
+    from phong_frames import phong_frame
+
+    p = _PALE_FUSED
+    guides = 4.0 * np.array([[np.cos(p["ax"]), np.sin(p["ax"]), 0.0], [-np.cos(p["ax"]), -np.sin(p["ax"]), 0.0]])
+    n = _normal(p["tilt"], p["az"])
+    img, K, truth = phong_frame(p["W"], p["H"], p["f"], guides, n, p["depth"], p["phong"], ks, p["tissue"],
+                                p["median"], noise, seed, white=white)
+    return img, K, n, truth, guides
+
+
+@pytest.mark.parametrize("noise, seed", [(0.02, 1022), (0.01, 7)])
+def test_pale_lobes_fused_into_one_region_get_both_guides_rows(tmp_path, noise, seed):
+    # the two lobes make one candidate, refused as not_specular (its peak's chroma 0.65 to 0.72 of the
+    # tissue's, PALENESS_MAX 0.6); no other candidate is its twin. Their tops at the rig's baseline, the luma
+    # dipping between them, stand for the twin: the region is split by its joint plane fit, both rows within
+    # 0.03 deg (the must-hold's median bound 0.5 deg)
+    from phong_frames import reconstruct_frame
+
+    img, K, n, truth, guides = _pale_fused(0.5, noise, seed)
+    rows = _score(reconstruct_frame(tmp_path, img, K, guides), truth, n)
+    assert _every_guide_ok(rows), rows
+    # one guide in the camera file: no rig pair to split, and the pale region stays not_specular
+    rows = _score(reconstruct_frame(tmp_path, img, K, guides[:1]), truth, n)
+    assert "ok" not in [s for s, _ in rows], rows
+
+
+def test_a_pale_streak_along_the_rigs_baseline_is_not_split_into_guides_rows(tmp_path):
+    # the same plane without lobes, a white streak (a Gaussian of sigma 12 px on the rig's curve, 4 px across
+    # it, 0.15 of full scale in linear light) centred between the guides' specular points: pale, stretched
+    # along the curve, and its joint plane fit puts both guides' points in it (without the dip, both rows
+    # were ok). Its luma peaks between those points instead of dipping: no guide's row
+    along, across, amp = 12.0, 4.0, 0.15
+    from phong_frames import reconstruct_frame
+
+    _, _, _, truth, guides = _pale_fused(0.0, 0.0, 0)
+    p, (a, b) = _PALE_FUSED, np.asarray(truth)
+    t = (b - a) / np.linalg.norm(b - a)
+    vv, uu = np.mgrid[0:p["H"], 0:p["W"]].astype(float)
+    du, dv = uu - (a[0] + b[0]) / 2, vv - (a[1] + b[1]) / 2
+    streak = amp * np.exp(-0.5 * (((du * t[0] + dv * t[1]) / along) ** 2 + ((dv * t[0] - du * t[1]) / across) ** 2))
+    img, K, n, truth, guides = _pale_fused(0.0, 0.02, 3, white=streak)
+    specs = reconstruct_frame(tmp_path, img, K, guides)
+    assert [s for s in specs if s["status"] == "ok"] == [], specs
+
+
 def test_a_lobe_whose_isophote_the_frames_edge_cuts_gets_its_guides_row(tmp_path):
     # broad Blinn lobes (exponent 259) of a plane tilted 33 deg towards the top edge (f 347 px): each
     # guide's t = 0.7 isophote leaves the frame (contour_cut) and both got the BP ray (8.6, 9.1 deg).

@@ -168,12 +168,17 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
                  for e in estimates]
     # the frame's luma once for the three steps, where a highlight or a split may read it
     gray = luma(np.asarray(image)) if _offset_rig(rig) and any(map(splittable, estimates)) else None
-    split = fused_lobe_candidates(gray, estimates, camera, rig) if gray is not None else []  # fitted in the workers
-    if split:  # two guides' lobes are the illuminant's light: a candidate of the tissue's colour is no pair
-        # (a top clipped in every channel is white whatever the colour at its BP)
-        white = specular_colour_at(np.asarray(image), gray, [estimates[i].bp_px for i in split],
-                                   full_scale=default_full_scale(np.asarray(image)), response=kwargs.get("response"))
-        split = [i for i, w in zip(split, white) if w or estimates[i].saturated]
+    split = []  # the rejected candidates of fused lobes, fitted in the workers
+    if gray is not None:
+        # two guides' lobes are the illuminant's light: a candidate of the tissue's colour is no pair (a top
+        # clipped in every channel is white whatever the colour at its BP; a pale not_specular one needs only the
+        # white share, its tops along the rig's curve standing for a twin). The colour first, the cheaper check
+        maybe = [i for i, e in enumerate(estimates) if splittable(e) and not e.ok]
+        white = specular_colour_at(np.asarray(image), gray, [estimates[i].bp_px for i in maybe],
+                                   full_scale=default_full_scale(np.asarray(image)), response=kwargs.get("response"),
+                                   white_only=[estimates[i].status == "not_specular" for i in maybe])
+        split = fused_lobe_candidates(gray, estimates, camera, rig,
+                                      among={i for i, w in zip(maybe, white) if w or estimates[i].saturated})
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
                               plane_only=split, **kwargs)
     split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray)

@@ -2,8 +2,9 @@
 
 Where the patch is near and shiny, the guides' lobes (:mod:`simtest.reconstruct.rig_pairs`)
 touch and the detector sees one bright region (``ok`` at neither specular point, ``merged``,
-``bad_fit``, ``not_elliptical``, ``contour_cut``, ``touches_border``). The light-aware photometric
-fit models every lobe on one plane: it needs no ellipse, nor the part of the region the frame cuts.
+``bad_fit``, ``not_elliptical``, ``contour_cut``, ``touches_border``; ``not_specular`` where the lobes are pale
+or weak, as for a rig twin). The light-aware photometric fit models every lobe on one plane: it needs no
+ellipse, nor the part of the region the frame cuts.
 
 Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point ``X_s = L' h / (-n . L')`` with
 ``L' = L - 2 (n . L + h) n`` (without a distance, the h that centres them on the clipped tops, :func:`_on_the_tops`).
@@ -11,7 +12,11 @@ When two or more guides' points lie in the candidate's bright region (above :dat
 height, holding the BP), at least :data:`~simtest.decisions.PAIR_TOL_PX` apart and, if clipped, one within
 ``PAIR_TOL_PX`` of its top (a weaker lobe may not clip), it gives one row per guide whose point is no light-aware
 ok candidate's BP (that highlight has its own row): BP at its specular point, status ``ok``, the joint fit's
-normal. A rejected candidate is fitted for this only where the rig's curve runs in its region. A lobe the frame's
+normal. A rejected candidate is fitted for this only where the rig's curve runs in its region. Under two guides a
+``merged``, ``cluster`` or ``not_specular`` one's tops must stretch along that curve too; a ``not_specular`` one
+must be white (the colour check's white share; its paleness is waived, as for a rig twin: two tops at the
+rig's baseline are what texture does not repeat), its peak significant, and the luma must dip between its fit's
+two points (:func:`_dips_between`; one elongated blob peaks between them); none under three or more guides. A lobe the frame's
 edge cuts (its region, ``touches_border``, or its isophote, ``contour_cut``) gives its guide's row where its fit, ok
 with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top).
 
@@ -35,7 +40,7 @@ import numpy as np
 
 from simtest._threads import one_thread_each
 from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH,
-                               MIN_AREA_PX, PAIR_TOL_PX, PEAK_SMOOTH_SIGMA_PX, PEAK_TOP_SHARE,
+                               MIN_AREA_PX, PAIR_TOL_PX, PEAK_SMOOTH_GAP_SHARE, PEAK_SMOOTH_SIGMA_PX, PEAK_TOP_SHARE,
                                SIGNIFICANCE_MIN, TOP_CORE_SHARE, TOPS_PLACE_SIGMA_PX)
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import luma, noise_sigma
@@ -48,23 +53,40 @@ __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points",
            "splittable"]
 
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring, :func:`splittable`).
-SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut", "touches_border")
+SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut", "touches_border",
+                  "not_specular")
+
+#: Of :data:`SPLIT_STATUSES`, those split only where their tops stretch along the rig's curve (two guides).
+_STRETCHED_STATUSES = ("merged", "cluster", "not_specular")
 
 
 def splittable(est) -> bool:
     """Whether the rule may split a candidate: its status in :data:`SPLIT_STATUSES`, touching the border only
-    with a clipped top in the frame (unclipped, the cut region is as likely one lobe's shoulder)."""
+    with a clipped top in the frame (unclipped, the cut region is as likely one lobe's shoulder), ``not_specular``
+    only under two guides (:func:`fused_lobe_candidates`)."""
     return est.status in SPLIT_STATUSES and (est.saturated or est.status != "touches_border")
+
+
+def _roi_base(gray: np.ndarray, est) -> tuple[np.ndarray, float, int, int]:
+    """``(sub, base, row0, col0)``: the candidate's ROI of ``gray`` and the lobe's zero, the median of the ROI's
+    border (the isophotes' zero: the diffuse shading under the lobe)."""
+    r0, r1, c0, c1 = (int(v) for v in (est.roi.row0, est.roi.row1, est.roi.col0, est.roi.col1))
+    sub = gray[r0:r1, c0:c1]
+    return sub, float(np.median(np.concatenate([sub[0], sub[-1], sub[1:-1, 0], sub[1:-1, -1]]))), r0, c0
+
+
+def _significant(gray: np.ndarray, est) -> bool:
+    """Whether the candidate's BP stands :data:`~simtest.decisions.SIGNIFICANCE_MIN` noise sigmas of its ROI
+    (:func:`~simtest.reconstruct.detect_pixels.noise_sigma`) above the ROI's border median: a peak, not noise."""
+    sub, base, _, _ = _roi_base(gray, est)
+    return float(est.bp_intensity) - base >= SIGNIFICANCE_MIN * noise_sigma(sub)
 
 
 def _bright_region(gray: np.ndarray, est) -> tuple[np.ndarray, int, int] | None:
     """The connected pixels of the candidate's ROI above :data:`FUSED_LOBE_LEVEL` of its BP's height
     that hold the BP: ``(mask, row0, col0)``, or None when the BP's pixel is not above the level.
     """
-    r0, r1, c0, c1 = (int(v) for v in (est.roi.row0, est.roi.row1, est.roi.col0, est.roi.col1))
-    sub = gray[r0:r1, c0:c1]
-    # the lobe's height above the diffuse shading: the ROI's border median (the isophotes' zero)
-    base = float(np.median(np.concatenate([sub[0], sub[-1], sub[1:-1, 0], sub[1:-1, -1]])))
+    sub, base, r0, c0 = _roi_base(gray, est)
     above = (sub >= base + FUSED_LOBE_LEVEL * (float(est.bp_intensity) - base)).astype(np.uint8)
     r, c = (int(v) for v in np.rint(uv_to_rc(np.asarray(est.bp_px, dtype=np.float64))))
     r, c = r - r0, c - c0
@@ -186,6 +208,25 @@ def _on_the_peaks(gray: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     return pts[np.flatnonzero(on)[np.argmin(cost[on])]] if on.any() else None
 
 
+def _dips_between(gray: np.ndarray, region, pts: np.ndarray) -> bool:
+    """Whether the region's luma dips between two guides' specular points ``pts`` (2, 2) (u, v) px: smoothed by a
+    Gaussian of :data:`~simtest.decisions.PEAK_SMOOTH_GAP_SHARE` of their gap, the lower of the brightest within
+    :data:`~simtest.decisions.PAIR_TOL_PX` of each point stands above the darkest of the segment's middle half by
+    :data:`~simtest.decisions.SIGNIFICANCE_MIN` sigmas of the dip's noise (two lobes, not one elongated blob)."""
+    mask, r0, c0 = region
+    sub = gray[r0:r0 + mask.shape[0], c0:c0 + mask.shape[1]].astype(np.float32)
+    gap = float(np.linalg.norm(pts[1] - pts[0]))
+    s = max(PEAK_SMOOTH_SIGMA_PX, PEAK_SMOOTH_GAP_SHARE * gap)
+    sm = cv2.GaussianBlur(sub, (0, 0), s)
+    t = np.linspace(0.0, 1.0, int(np.ceil(gap)) + 2)
+    uv = (pts[0] + t[:, None] * (pts[1] - pts[0]) - (c0, r0)).astype(np.float32)  # (u, v) in the ROI
+    prof = cv2.remap(sm, uv[:, :1], uv[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[:, 0]
+    tops = min(float(prof[t * gap <= PAIR_TOL_PX].max()), float(prof[(1.0 - t) * gap <= PAIR_TOL_PX].max()))
+    dip = tops - float(prof[(t >= 0.25) & (t <= 0.75)].min())
+    # as for _on_the_peaks: two white-noise pixels through the Gaussian, sigma sqrt(2 / (4 pi)) / s of a pixel's
+    return dip > SIGNIFICANCE_MIN * noise_sigma(sub) / (np.sqrt(2 * np.pi) * s)
+
+
 def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | None:
     """The rows of one fitted candidate's fused lobes (module docstring), or None."""
     fit = (est.light_aware or {}).get("photometric_fit")
@@ -201,6 +242,8 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
             return None
     else:
         return None
+    if est.status == "not_specular" and not (len(pts) == 2 and _dips_between(gray, region, pts)):
+        return None  # a pale or weak region is two guides' lobes only where its luma dips between their points
     k = np.flatnonzero(_inside(region, pts))
     cut = est.status in ("touches_border", "contour_cut") and _plane(fit)
     if len(k) < (1 if cut else 2):
@@ -327,15 +370,18 @@ def _pair_rows(est, camera, rig, region, pair, others: np.ndarray, split: list |
             for k in np.argsort(guides)] if ests else None
 
 
-def fused_lobe_candidates(gray, estimates, camera, rig) -> list[int]:
-    """The indexes of the rejected candidates in :data:`SPLIT_STATUSES` whose region reaches along the
-    rig's curve (``gray``: the frame's luma), to be fitted with the plane only and split; empty without a
-    rig off the camera centre. Under two guides, a ``merged`` or ``cluster`` one's tops stretched along it."""
+def fused_lobe_candidates(gray, estimates, camera, rig, among=None) -> list[int]:
+    """The indexes of the rejected candidates in :data:`SPLIT_STATUSES` (of the indexes ``among``, default all)
+    whose region reaches along the rig's curve (``gray``: the frame's luma), to be fitted with the plane only and
+    split; empty without a rig off the camera centre. Under two guides, a ``merged``, ``cluster`` or
+    ``not_specular`` one's tops stretched along it; a ``not_specular`` one only under two guides and where its
+    peak is significant (:func:`_significant`; its colour is the caller's check)."""
     if not _offset_rig(rig):
         return []
     two = len(rig.positions) == 2  # three or more guides' tops make a polygon, not a line
-    return [i for i, e in enumerate(estimates) if splittable(e) and not e.ok
-            and _along_the_rig(gray, e, camera, rig, two and e.status in ("merged", "cluster"))]
+    return [i for i, e in enumerate(estimates) if (among is None or i in among) and splittable(e) and not e.ok
+            and (e.status != "not_specular" or (two and _significant(gray, e)))
+            and _along_the_rig(gray, e, camera, rig, two and e.status in _STRETCHED_STATUSES)]
 
 
 def _one_split_per_pair(parts: list, splits: list) -> None:

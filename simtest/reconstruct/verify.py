@@ -433,9 +433,10 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
 
 
 def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, *, full_scale: float,
-                       response=None, background_px: int | None = None) -> np.ndarray:
+                       response=None, background_px: int | None = None, white_only=None) -> np.ndarray:
     """The colour check of ``not_specular`` alone at the BPs ``bps_uv`` (N, 2) (u, v) px of ``image``
-    (``background_px``: as for :func:`bp_checks`).
+    (``background_px``: as for :func:`bp_checks`); where ``white_only`` (bool (N,)) is set, the white share
+    alone (:data:`WHITE_SHARE_MIN`; the paleness waived, as for a rig twin).
 
     Returns bool (N,); all True for a grey frame.
     """
@@ -446,7 +447,9 @@ def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, 
     src = image[..., :3]
     side = background_px or background_side_px(gray.shape)
     bg = _as_srgb(_opening_at(src, side, ij[:, 1], ij[:, 0]), full_scale, response)
-    return _specular_colour(*_bp_colour(src, ij[:, 1], ij[:, 0], bg, full_scale, response))
+    chroma, chroma_tissue, share = _bp_colour(src, ij[:, 1], ij[:, 0], bg, full_scale, response)
+    out = _specular_colour(chroma, chroma_tissue, share)
+    return out if white_only is None else out | (np.asarray(white_only, bool) & (share >= WHITE_SHARE_MIN))
 
 
 def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
