@@ -162,10 +162,10 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     given their centroid light's normal; a list of SpecularityEstimate.
     """
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
-    # a weak twin is ok to the fits and the rig's rules, and stays so where its plane fit confirms the twin
-    mark = f"{WEAK_TWIN}: "
-    estimates = [dataclasses.replace(e, status="ok", detail=mark + e.detail) if e.status == WEAK_TWIN else e
-                 for e in estimates]
+    # a weak twin is ok to the fits and the rig's rules, and stays so where its plane fit confirms the twin (its
+    # row found again by its BP, which the steps below keep; a split gives its rows their own BPs and checks)
+    weak_bps = {tuple(e.bp_px) for e in estimates if e.status == WEAK_TWIN}
+    estimates = [dataclasses.replace(e, status="ok") if e.status == WEAK_TWIN else e for e in estimates]
     # the frame's luma once for the three steps, where a highlight or a split may read it
     gray = luma(np.asarray(image)) if _offset_rig(rig) and any(map(splittable, estimates)) else None
     split = []  # the rejected candidates of fused lobes, fitted in the workers
@@ -183,7 +183,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
                               plane_only=split, **kwargs)
     split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray)
     out = rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
-    weak = [k for k, e in enumerate(out) if e.ok and e.detail.startswith(mark)]
+    weak = [k for k, e in enumerate(out) if e.ok and tuple(e.bp_px) in weak_bps]
     if weak:
         bps = np.array([e.bp_px for e in out], np.float64)
         reach = PAIR_TOL_PX + np.array([estimate_wander_px(e) for e in out])
@@ -192,7 +192,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
             why = ("which its plane fit confirms" if yes else "which its plane fit does not confirm (no plane with its "
                    "depth puts a guide's highlight on its BP and another's on another highlight)")
             out[k] = dataclasses.replace(out[k], status="ok" if yes else "not_specular",
-                                         detail=f"{out[k].detail[len(mark):]}, {why}")
+                                         detail=f"{out[k].detail}, {why}")
     return out
 
 
