@@ -455,6 +455,24 @@ def test_a_pale_streak_along_the_rigs_baseline_is_not_split_into_guides_rows(tmp
     assert [s for s in specs if s["status"] == "ok"] == [], specs
 
 
+def test_broad_lobes_fused_under_red_clipping_get_both_guides_rows(tmp_path):
+    # an outside-style frame (640 x 480, f 230 px; guides 5 mm off the lens; a plane 15.2 mm away tilted
+    # 21.9 deg; Phong n 15, k_s 0.5, shading median 0.45, 1 % noise, JPEG 90; red clipped on 6.9 % of it):
+    # the lobes are wider than the background square, and their second look on the wider one is one region,
+    # merged (its t = 0.7 isophote, 195 px across, holds a noise peak). Its tops do not stretch along the
+    # rig's curve (the dimmer lobe's top is below the brighter's margin); its joint fit's points have the luma
+    # dip between them, so it gives both rows (before: nothing but too_small and not_specular specks)
+    from phong_frames import phong_frame, reconstruct_frame
+
+    ax = 2.414228083304055
+    guides = np.array([[5 * np.cos(ax), 5 * np.sin(ax), 0.0], [-5 * np.cos(ax), -5 * np.sin(ax), 0.0]])
+    n = _normal(21.908387849423455, 215.59138560721627)
+    img, K, truth = phong_frame(640, 480, 230.0, guides, n, 15.189823720293314, 15.0, 0.5, (0.85, 0.5, 0.45),
+                                0.4500033346239473, 0.01, 1041)
+    rows = _score(reconstruct_frame(tmp_path, _jpeg(img, 90), K, guides), truth, n)
+    assert _every_guide_ok(rows), rows
+
+
 def test_a_lobe_whose_isophote_the_frames_edge_cuts_gets_its_guides_row(tmp_path):
     # broad Blinn lobes (exponent 259) of a plane tilted 33 deg towards the top edge (f 347 px): each
     # guide's t = 0.7 isophote leaves the frame (contour_cut) and both got the BP ray (8.6, 9.1 deg).

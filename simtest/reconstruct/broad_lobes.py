@@ -20,6 +20,7 @@ from simtest.reconstruct.detect_pixels import wide_lobe_boxes
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_pass import detected, frame_pass
 from simtest.reconstruct.frame_prep import _Frame
+from simtest.reconstruct.light_fits import _offset_rig
 from simtest.reconstruct.verify import bp_checks
 
 __all__ = ["with_broad_lobes"]
@@ -47,8 +48,9 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
     2. of those, the ones whose brightest pixel passes the colour and height checks on the wider
        square (:func:`~simtest.reconstruct.verify.bp_checks`);
     3. the region around each detected again on the wider square, and its accepted candidates in
-       the box through every check. One that comes out ``ok`` with a primary isophote at least
-       ``BROAD_ISOPHOTE_REL`` of the first square across replaces the estimates in its box.
+       the box through every check. One that comes out ``ok`` (or, under a rig of separate lights,
+       ``merged``: the guides' lobes fused, for the rig's step to split) with a primary isophote at
+       least ``BROAD_ISOPHOTE_REL`` of the first square across replaces the estimates in its box.
 
     The verdicts decide, so a frame reconstructed without the checks keeps its first pass.
 
@@ -86,6 +88,9 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
     boxes = boxes[~_in_boxes(held, boxes).any(axis=0)]
     boxes = boxes[_specular_tops(frame, sub, det.gray, boxes, side, again[1])] if len(boxes) else boxes
     wide_frame = dataclasses.replace(frame, background_px=side)
+    # under a rig of separate lights a merged second look is kept too: two guides' broad lobes fused into one
+    # region, which the rig's step splits where their luma dips between its fit's points (rig_lobes)
+    rig = _offset_rig(lights)
     ests, cands, at = [], [], []
     for box in boxes:
         # the box and half a square around it, on the grid of the wider square's reduced frame
@@ -104,7 +109,8 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
         got, _, _ = frame_pass(wide_frame, img, region, lights, det=wide, only=pick, again=again)
         for i, e in zip(pick, got):
             seen = any(np.array_equal(e.bp_px, x.bp_px) for x in ests)  # boxes that overlap find it twice
-            if (e.ok and not seen and e.primary is not None and e.primary.ellipse is not None
+            if ((e.ok or (e.status == "merged" and rig)) and not seen and e.primary is not None
+                    and e.primary.ellipse is not None
                     and 2.0 * max(e.primary.ellipse.semi_axes) >= BROAD_ISOPHOTE_REL * narrow):
                 ests.append(e)
                 cands.append(wide.candidates[i])

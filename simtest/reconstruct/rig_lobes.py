@@ -13,10 +13,11 @@ height, holding the BP), at least :data:`~simtest.decisions.PAIR_TOL_PX` apart a
 ``PAIR_TOL_PX`` of its top (a weaker lobe may not clip), it gives one row per guide whose point is no light-aware
 ok candidate's BP (that highlight has its own row): BP at its specular point, status ``ok``, the joint fit's
 normal. A rejected candidate is fitted for this only where the rig's curve runs in its region. Under two guides a
-``merged``, ``cluster`` or ``not_specular`` one's tops must stretch along that curve too; a ``not_specular`` one
-must be white (the colour check's white share; its paleness is waived, as for a rig twin: two tops at the
-rig's baseline are what texture does not repeat), its peak significant, and the luma must dip between its fit's
-two points (:func:`_dips_between`; one elongated blob peaks between them); none under three or more guides. A lobe the frame's
+``merged`` or ``cluster`` one whose tops do not stretch along that curve gives rows only where the luma dips
+between its fit's two points (:func:`_dips_between`; one elongated blob peaks between them). A ``not_specular``
+one is fitted under two guides only, where it is white (the colour check's white share; its paleness is waived,
+as for a rig twin: two tops at the rig's baseline are what texture does not repeat), its peak is significant
+and its tops stretch along the curve, and it gives rows only where the luma dips between its fit's points. A lobe the frame's
 edge cuts (its region, ``touches_border``, or its isophote, ``contour_cut``) gives its guide's row where its fit, ok
 with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top).
 
@@ -55,9 +56,6 @@ __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points",
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring, :func:`splittable`).
 SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut", "touches_border",
                   "not_specular")
-
-#: Of :data:`SPLIT_STATUSES`, those split only where their tops stretch along the rig's curve (two guides).
-_STRETCHED_STATUSES = ("merged", "cluster", "not_specular")
 
 
 def splittable(est) -> bool:
@@ -227,6 +225,14 @@ def _dips_between(gray: np.ndarray, region, pts: np.ndarray) -> bool:
     return dip > SIGNIFICANCE_MIN * noise_sigma(sub) / (np.sqrt(2 * np.pi) * s)
 
 
+def _dip_needed(gray: np.ndarray, est, camera, rig) -> bool:
+    """Whether a fused candidate's rows need its luma to dip between its fit's points (:func:`_dips_between`): a
+    ``not_specular`` one (pale or weak), and under two guides a ``merged`` or ``cluster`` one whose tops do not
+    stretch along the rig's curve (:func:`_along_the_rig`; a dimmer lobe's top below the brighter's margin)."""
+    return est.status == "not_specular" or (est.status in ("merged", "cluster") and len(rig.positions) == 2
+                                            and not _along_the_rig(gray, est, camera, rig, True))
+
+
 def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | None:
     """The rows of one fitted candidate's fused lobes (module docstring), or None."""
     fit = (est.light_aware or {}).get("photometric_fit")
@@ -242,8 +248,8 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
             return None
     else:
         return None
-    if est.status == "not_specular" and not (len(pts) == 2 and _dips_between(gray, region, pts)):
-        return None  # a pale or weak region is two guides' lobes only where its luma dips between their points
+    if _dip_needed(gray, est, camera, rig) and not (len(pts) == 2 and _dips_between(gray, region, pts)):
+        return None  # such a region is two guides' lobes only where its luma dips between their points
     k = np.flatnonzero(_inside(region, pts))
     cut = est.status in ("touches_border", "contour_cut") and _plane(fit)
     if len(k) < (1 if cut else 2):
@@ -373,15 +379,14 @@ def _pair_rows(est, camera, rig, region, pair, others: np.ndarray, split: list |
 def fused_lobe_candidates(gray, estimates, camera, rig, among=None) -> list[int]:
     """The indexes of the rejected candidates in :data:`SPLIT_STATUSES` (of the indexes ``among``, default all)
     whose region reaches along the rig's curve (``gray``: the frame's luma), to be fitted with the plane only and
-    split; empty without a rig off the camera centre. Under two guides, a ``merged``, ``cluster`` or
-    ``not_specular`` one's tops stretched along it; a ``not_specular`` one only under two guides and where its
-    peak is significant (:func:`_significant`; its colour is the caller's check)."""
+    split; empty without a rig off the camera centre. A ``not_specular`` one only under two guides, its tops
+    stretched along the curve and its peak significant (:func:`_significant`; its colour is the caller's check)."""
     if not _offset_rig(rig):
         return []
     two = len(rig.positions) == 2  # three or more guides' tops make a polygon, not a line
     return [i for i, e in enumerate(estimates) if (among is None or i in among) and splittable(e) and not e.ok
             and (e.status != "not_specular" or (two and _significant(gray, e)))
-            and _along_the_rig(gray, e, camera, rig, two and e.status in _STRETCHED_STATUSES)]
+            and _along_the_rig(gray, e, camera, rig, two and e.status == "not_specular")]
 
 
 def _one_split_per_pair(parts: list, splits: list) -> None:
