@@ -388,13 +388,11 @@ def test_a_weak_twin_its_fit_does_not_confirm_is_not_specular(tmp_path):
     # A JPEG-noise bump on guide 1's broad shoulder, 33 px from its specular point, is white, significant
     # and has a twin within its reach; its plane fit puts no guide's highlight on its BP, so it is no
     # highlight (before the check, ok with the BP ray, 11.7 deg off)
-    from phong_frames import phong_frame, reconstruct_frame
+    from phong_frames import reconstruct_frame
 
-    ax = 0.781369274028903
-    guides = np.array([[5 * np.cos(ax), 5 * np.sin(ax), 0.0], [-5 * np.cos(ax), -5 * np.sin(ax), 0.0]])
-    n = _normal(7.971770139197747, 158.03957829751965)
-    img, K, truth = phong_frame(1280, 1024, 420.0, guides, n, 19.52349418440199, 40.0, 0.5, (0.85, 0.5, 0.45),
-                                0.2591844216558598, 0.01, 1020)
+    img, K, n, truth, guides = _outside(1280, 1024, 420.0, 5.0, 0.781369274028903, 7.971770139197747,
+                                        158.03957829751965, 19.52349418440199, 40.0, 0.5, (0.85, 0.5, 0.45),
+                                        0.2591844216558598, 0.01, 1020)
     specs = reconstruct_frame(tmp_path, _jpeg(img, 90), K, guides)
     assert _every_guide_ok(_score(specs, truth, n))
     for s in (s for s in specs if s["status"] == "ok"):  # every ok row is a highlight
@@ -404,20 +402,25 @@ def test_a_weak_twin_its_fit_does_not_confirm_is_not_specular(tmp_path):
 
 #: An outside-style plane (Phong n 100, k_s 0.5, shading median 0.27, JPEG-free) 33.4 mm away, tilted 18.8 deg,
 #: under guides 4 mm off the lens, at 640 x 512 (f 237 px): its two pale lobes, 32 px apart, fuse into one region.
-_PALE_FUSED = dict(W=640, H=512, f=237.0, ax=1.8876, tilt=18.7703, az=20.0169, depth=33.3604, phong=100.0,
+_PALE_FUSED = dict(W=640, H=512, f=237.0, b=4.0, ax=1.8876, tilt=18.7703, az=20.0169, depth=33.3604, phong=100.0,
                    tissue=(0.7, 0.45, 0.35), median=0.2732)
+
+
+def _outside(W, H, f, b, ax, tilt, az, depth, phong, ks, tissue, median, noise, seed, white=None):
+    """An outside-style frame (:func:`phong_frames.phong_frame`) under two guides ``b`` mm either side of the lens
+    along the image angle ``ax`` (rad), of a plane ``depth`` mm away tilted ``tilt`` deg towards azimuth ``az``
+    deg: ``(img, K, n, truth, guides)``."""
+    from phong_frames import phong_frame
+
+    guides = b * np.array([[np.cos(ax), np.sin(ax), 0.0], [-np.cos(ax), -np.sin(ax), 0.0]])
+    n = _normal(tilt, az)
+    img, K, truth = phong_frame(W, H, f, guides, n, depth, phong, ks, tissue, median, noise, seed, white=white)
+    return img, K, n, truth, guides
 
 
 def _pale_fused(ks, noise, seed, white=None):
     """The :data:`_PALE_FUSED` frame: ``(img, K, n, truth, guides)``."""
-    from phong_frames import phong_frame
-
-    p = _PALE_FUSED
-    guides = 4.0 * np.array([[np.cos(p["ax"]), np.sin(p["ax"]), 0.0], [-np.cos(p["ax"]), -np.sin(p["ax"]), 0.0]])
-    n = _normal(p["tilt"], p["az"])
-    img, K, truth = phong_frame(p["W"], p["H"], p["f"], guides, n, p["depth"], p["phong"], ks, p["tissue"],
-                                p["median"], noise, seed, white=white)
-    return img, K, n, truth, guides
+    return _outside(**_PALE_FUSED, ks=ks, noise=noise, seed=seed, white=white)
 
 
 @pytest.mark.parametrize("noise, seed", [(0.02, 1022), (0.01, 7)])
@@ -462,13 +465,11 @@ def test_broad_lobes_fused_under_red_clipping_get_both_guides_rows(tmp_path):
     # merged (its t = 0.7 isophote, 195 px across, holds a noise peak). Its tops do not stretch along the
     # rig's curve (the dimmer lobe's top is below the brighter's margin); its joint fit's points have the luma
     # dip between them, so it gives both rows (before: nothing but too_small and not_specular specks)
-    from phong_frames import phong_frame, reconstruct_frame
+    from phong_frames import reconstruct_frame
 
-    ax = 2.414228083304055
-    guides = np.array([[5 * np.cos(ax), 5 * np.sin(ax), 0.0], [-5 * np.cos(ax), -5 * np.sin(ax), 0.0]])
-    n = _normal(21.908387849423455, 215.59138560721627)
-    img, K, truth = phong_frame(640, 480, 230.0, guides, n, 15.189823720293314, 15.0, 0.5, (0.85, 0.5, 0.45),
-                                0.4500033346239473, 0.01, 1041)
+    img, K, n, truth, guides = _outside(640, 480, 230.0, 5.0, 2.414228083304055, 21.908387849423455,
+                                        215.59138560721627, 15.189823720293314, 15.0, 0.5, (0.85, 0.5, 0.45),
+                                        0.4500033346239473, 0.01, 1041)
     rows = _score(reconstruct_frame(tmp_path, _jpeg(img, 90), K, guides), truth, n)
     assert _every_guide_ok(rows), rows
 
