@@ -531,10 +531,10 @@ PEAK_SMOOTH_SIGMA_PX = decision(
     basis="physics", stage=_L)
 PEAK_SMOOTH_GAP_SHARE = decision(
     "PEAK_SMOOTH_GAP_SHARE", 1.0 / 6.0, "share of the two specular points' gap D (Gaussian sigma)",
-    "A pale or weak region is two guides' lobes only where its luma dips between their points; smoothed over "
-    "D / 6, two equal lobes of sigma s keep their dip while sqrt(s^2 + (D / 6)^2) < D / 2, i.e. s < 0.47 D (two "
-    "Gaussians dip between them only for D > 2 s), and a pixel's white noise falls by sqrt(4 pi) D / 6: a "
-    "dip of a few grey levels between lobes tens of pixels apart is told from noise.",
+    "A fused region that neither its colour nor its tops' stretch vouch for (pale or weak; a dimmer lobe's top "
+    "below the brighter's margin) is two guides' lobes only where its luma dips between their points; smoothed "
+    "over D / 6, two equal lobes of sigma s keep their dip while sqrt(s^2 + (D / 6)^2) < D / 2, i.e. s < 0.47 D "
+    "(two Gaussians dip only for D > 2 s), and white noise falls by sqrt(4 pi) D / 6: a dip of a few levels.",
     basis="physics", stage=_L)
 PEAK_TOP_SHARE = decision(
     "PEAK_TOP_SHARE", 0.5, "share of the dip between two peaks, above the valley",
