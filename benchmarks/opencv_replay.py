@@ -24,7 +24,7 @@ OPENCV_FUNCTIONS = (
     "min", "max", "medianBlur", "boxFilter", "sepFilter2D", "filter2D", "Sobel", "pyrDown",
     "minMaxLoc", "findNonZero", "countNonZero", "moments", "contourArea", "fillPoly",
     "distanceTransform", "compare", "subtract", "absdiff", "LUT", "transform", "bitwise_and", "norm",
-    "split", "pointPolygonTest", "extractChannel", "calcHist",
+    "split", "pointPolygonTest", "extractChannel", "calcHist", "remap",
 )
 #: Those of them that write into an argument: replayed on a fresh copy each time.
 _OPENCV_IN_PLACE = frozenset({"drawContours", "floodFill", "fillPoly"})
