@@ -17,9 +17,9 @@ normal. A rejected candidate is fitted for this only where the rig's curve runs 
 between its fit's two points (:func:`_dips_between`; one elongated blob peaks between them). A ``not_specular``
 one is fitted under two guides only, where it is white (the colour check's white share; its paleness is waived,
 as for a rig twin: two tops at the rig's baseline are what texture does not repeat), its peak is significant
-and its tops stretch along the curve, and it gives rows only where the luma dips between its fit's points. A lobe the frame's
-edge cuts (its region, ``touches_border``, or its isophote, ``contour_cut``) gives its guide's row where its fit, ok
-with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top).
+and its tops stretch along the curve, and it gives rows only where the luma dips between its fit's points. A lobe
+the frame's edge cuts (its region, ``touches_border``, or its isophote, ``contour_cut``) gives its guide's row where
+its fit, ok with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top).
 
 Partner. An ok row whose plane fit (ok, with its distance) puts its own guide's point on its BP and another guide's
 on a rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander) makes that candidate the other guide's
@@ -169,6 +169,12 @@ def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     return pts[int(best[len(best) // 2])]
 
 
+def _significant_dip(dip: float, sub: np.ndarray, s: float) -> bool:
+    """Whether a dip in ``sub`` smoothed over ``s`` px passes :data:`~simtest.decisions.SIGNIFICANCE_MIN` sigmas of its
+    noise: two white-noise pixels through the Gaussian, sqrt(2 / (4 pi)) / s of a pixel's (``noise_sigma(sub)``)."""
+    return dip > SIGNIFICANCE_MIN * noise_sigma(sub) / (np.sqrt(2 * np.pi) * s)
+
+
 def _on_the_peaks(gray: np.ndarray, region, camera, rig, normal) -> np.ndarray | None:
     """:func:`_on_the_tops` for two guides' unclipped lobes: their tops are the region's two brightest
     peaks (luma smoothed by :data:`~simtest.decisions.PEAK_SMOOTH_SIGMA_PX`; local maxima farther apart
@@ -190,8 +196,7 @@ def _on_the_peaks(gray: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     line = np.rint(np.linspace(two[0], two[1], int(np.ceil(np.linalg.norm(two[1] - two[0]))) + 1)).astype(int)
     valley = float(sm[line[:, 0], line[:, 1]].min())
     dip = float(sm[two[1, 0], two[1, 1]]) - valley
-    # the dip's noise: two white-noise pixels through the Gaussian, sigma sqrt(2 / (4 pi)) / s of a pixel's
-    if not dip > SIGNIFICANCE_MIN * noise_sigma(sub) / (np.sqrt(2 * np.pi) * PEAK_SMOOTH_SIGMA_PX):
+    if not _significant_dip(dip, sub, PEAK_SMOOTH_SIGMA_PX):
         return None
     _, labels, _, centroids = cv2.connectedComponentsWithStats((mask & (sm >= valley + PEAK_TOP_SHARE * dip)).astype(
         np.uint8), connectivity=8)
@@ -220,9 +225,7 @@ def _dips_between(gray: np.ndarray, region, pts: np.ndarray) -> bool:
     uv = (pts[0] + t[:, None] * (pts[1] - pts[0]) - (c0, r0)).astype(np.float32)  # (u, v) in the ROI
     prof = cv2.remap(sm, uv[:, :1], uv[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[:, 0]
     tops = min(float(prof[t * gap <= PAIR_TOL_PX].max()), float(prof[(1.0 - t) * gap <= PAIR_TOL_PX].max()))
-    dip = tops - float(prof[(t >= 0.25) & (t <= 0.75)].min())
-    # as for _on_the_peaks: two white-noise pixels through the Gaussian, sigma sqrt(2 / (4 pi)) / s of a pixel's
-    return dip > SIGNIFICANCE_MIN * noise_sigma(sub) / (np.sqrt(2 * np.pi) * s)
+    return _significant_dip(tops - float(prof[(t >= 0.25) & (t <= 0.75)].min()), sub, s)
 
 
 def _dip_needed(gray: np.ndarray, est, camera, rig) -> bool:
