@@ -7,9 +7,9 @@ the ROI's pixel grid the fits sample.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
-from simtest._lazy import require
 from simtest.decisions import ALBEDO_LINE_PX, ALBEDO_LINE_STEPS, GGX_FILM_IOR
 from simtest.geometry.angles import unit
 from simtest.geometry.camera import validate_intrinsics
@@ -313,17 +313,16 @@ def albedo_lines(luma_roi, step: float = 1.0, noise: float = 0.0) -> np.ndarray:
     ndarray of shape (H, W), bool
         True on the lines.
     """
-    ndi = require("scipy.ndimage")  # when first needed: scipy slows the start
     v = np.asarray(luma_roi, dtype=np.float32)
-    lines = np.zeros(v.shape[:2], bool)
+    lines = np.zeros(v.shape[:2], np.uint8)
     h = ALBEDO_LINE_PX // 2
     if v.ndim != 2 or min(v.shape) <= 2 * h:
-        return lines
+        return lines.astype(bool)
     yy, xx = np.mgrid[-h:h + 1, -h:h + 1]
-    disc = xx * xx + yy * yy <= h * h + 0.5
-    top_hat = ndi.grey_closing(v, footprint=disc, mode="nearest") - v
+    disc = (xx * xx + yy * yy <= h * h + 0.5).astype(np.uint8)
+    top_hat = cv2.morphologyEx(v, cv2.MORPH_CLOSE, disc, borderType=cv2.BORDER_REPLICATE) - v
     lines[h:-h, h:-h] = top_hat[h:-h, h:-h] >= max(ALBEDO_LINE_STEPS * float(step), 3.0 * float(noise))
-    return ndi.maximum_filter(lines, size=3, mode="nearest")
+    return cv2.dilate(lines, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE).astype(bool)
 
 
 def _roi_grid(values, camera, origin_uv, clip_level):
