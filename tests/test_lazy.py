@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import subprocess
 import sys
 
 import pytest
@@ -62,3 +63,13 @@ def test_a_command_needing_a_missing_extra_is_one_line(monkeypatch, tmp_path):
     assert res.exit_code == 2, res.output
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and 'pip install "simtest[dask]"' in lines[0], res.output
+
+
+def test_the_reconstruction_imports_no_scipy_until_a_step_needs_it():
+    # importing scipy is 0.2 to 0.5 s of a command's start on the 2-core VM: the reconstruction's
+    # modules take it through require() where a step needs it (the light-aware fits, the contours'
+    # linking), never at import, so that a command that needs none of it does not pay for it
+    code = ("import sys, simtest.cli, simtest.reconstruct.cli, simtest.reconstruct.pipeline; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", out

@@ -9,10 +9,9 @@ import functools
 
 import cv2
 import numpy as np
-from scipy import ndimage
+
 from simtest.decisions import WHITE_CHROMA, WHITE_SHARE_MIN
 from simtest.geometry.response import srgb_inverse
-
 from simtest.reconstruct.detect_pixels import (connected_components, connected_components_with_stats, linear_at,
                                               linear_taps, mask_labels)
 
@@ -256,7 +255,9 @@ def surely_no_panels(gray: np.ndarray, rr: np.ndarray, margin: int, thr2, slack:
     cut by the window's edge inside the frame.
     """
     h, w = gray.shape
-    t2 = ndimage.maximum_filter1d(np.atleast_1d(np.asarray(thr2, np.float64)), 3, mode="nearest")
+    # each level bin's bound and its neighbours' largest (a 3-wide maximum, the ends repeated)
+    t2 = cv2.dilate(np.atleast_1d(np.asarray(thr2, np.float64)).reshape(1, -1), np.ones((1, 3), np.uint8),
+                    borderType=cv2.BORDER_REPLICATE).ravel()
     for row0, row1, col0, col1 in np.asarray(rr, np.int64).reshape(-1, 4).tolist():
         wr0, wr1, wc0, wc1 = max(0, row0 - margin), min(h, row1 + margin), max(0, col0 - margin), min(w, col1 + margin)
         cr0, cr1, cc0, cc1 = max(0, wr0 - 2), min(h, wr1 + 2), max(0, wc0 - 2), min(w, wc1 + 2)
