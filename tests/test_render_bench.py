@@ -34,7 +34,7 @@ def test_bench_render_406_16spp(benchmark, scene):
 
 @pytest.mark.slow
 def test_bench_render_function_reports_per_scene(monkeypatch):
-    # the endoscope part (bench_endoscope, every preset and the plain-Mitsuba comparison) runs on
+    # the endoscope part (bench_endoscope, every preset, the plain-Mitsuba and tube comparisons) runs on
     # its presets shrunk to a tenth of their film at 1 spp: the runner is checked, not the speed
     import benchmarks.render as brender
 
@@ -61,6 +61,9 @@ def test_bench_render_function_reports_per_scene(monkeypatch):
     plain = endo["colonoscope_vs_plain"]
     assert plain["tissue_s"] > 0 and plain["plain_mitsuba_s"] > 0
     assert plain["ratio"] == plain["tissue_s"] / plain["plain_mitsuba_s"]
+    tube = endo["colonoscope_vs_tube"]  # issue 62's bound: the haustral colon against the former tube
+    assert tube["haustral_s"] > 0 and tube["tube_s"] > 0 and tube["ratio"] == tube["haustral_s"] / tube["tube_s"]
+    assert tube["ratio_target"] == brender.TUBE_RATIO_TARGET
 
 
 def test_compare_variants_of_one_variant_finds_no_difference_and_names_a_missing_one():
