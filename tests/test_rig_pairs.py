@@ -362,6 +362,21 @@ def test_a_pale_lobe_rejected_as_not_specular_is_the_row_its_partners_fit_places
     assert any("where guide 2's fit puts it (not_specular" in s["detail"] for s in specs if s["status"] == "ok")
 
 
+def test_a_too_small_lobe_where_its_partners_fit_puts_it_is_that_guides_row(tmp_path):
+    # a plane 31 mm away tilted 41 deg under guides 5 mm either side, Phong 100, k_s 0.5: guide 2's lobe is
+    # small and weak, its core above PEAK_REL of its height 3 px (MIN_AREA_PX 4), too_small and never fitted:
+    # the BP ray. Guide 1's ok plane fit puts guide 2's specular point in that candidate's bright region, and
+    # that candidate's own plane fit (its ROI holds the lobe's flanks) puts guide 1's back: guide 2's row
+    from phong_frames import reconstruct_frame
+
+    img, K, n, truth, guides = _outside(640, 480, 230.0, 5.0, 2.37978, 41.2538, 347.216, 31.2053, 100.0, 0.5,
+                                        (0.85, 0.5, 0.45), 0.263295, 0.005, 1041)
+    specs = reconstruct_frame(tmp_path, img, K, guides)
+    rows = _score(specs, truth, n)
+    assert _every_guide_ok(rows), rows
+    assert any("(too_small" in s["detail"] for s in specs if s["status"] == "ok"), rows
+
+
 @pytest.mark.parametrize("spec, shininess", [(0.6, 400.0), (0.45, 400.0), (0.6, 250.0)])
 def test_weak_pale_lobes_each_the_others_rig_twin_get_light_aware_normals(tmp_path, spec, shininess):
     # unclipped lobes on bright tissue (shading median 0.3 of full scale): each peak fills 0.28 to 0.52 of

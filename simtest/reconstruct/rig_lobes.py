@@ -24,8 +24,8 @@ its fit, ok with its distance, puts that point alone (if clipped, within ``PAIR_
 Partner. An ok row whose plane fit (ok, with its distance) puts its own guide's point on its BP and another guide's
 on a rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander) makes that candidate the other guide's
 row where the candidate's own plane fit puts both points back: a weak lobe whose isophote the other's tail deforms.
-A candidate with no closed isophote to measure its BP's wander (a lobe the frame cuts; a pale lobe rejected as
-``not_specular``) is the other guide's where its bright region holds that point, its own fit's too.
+A candidate with no closed isophote to measure its BP's wander (a lobe the frame cuts; a pale one, ``not_specular``;
+a weak one whose core is ``too_small``) is the other guide's where its bright region holds that point, its fit's too.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each of at least
 :data:`~simtest.decisions.MIN_AREA_PX`) where the rig pairs them gives one row per top at its centroid, with the plane
@@ -476,7 +476,7 @@ def _plane(fit) -> bool:
 def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarray):
     """``(c, region)``: the rejected candidate (not ok, fitted when rejected ones are) whose BP lies within
     ``PAIR_TOL_PX`` plus its wander of ``uv``, the nearest (region None); else one with no closed isophote to
-    measure its wander (or rejected as ``not_specular``, a pale lobe) whose bright region (:func:`_bright_region`)
+    measure its wander (or rejected as ``not_specular`` or ``too_small``) whose bright region (:func:`_bright_region`)
     holds ``uv``, with that region. None where an ok row's BP lies within ``PAIR_TOL_PX`` of ``uv``, or none is."""
     uv = np.asarray(uv, np.float64)
     gaps = np.nan_to_num(np.linalg.norm(bps - uv, axis=1), nan=np.inf)
@@ -489,7 +489,7 @@ def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarra
         return int(np.flatnonzero(free)[np.argmin(gaps[free])]), None
     # no wander to measure (no closed isophote; a not_specular lobe has none either), its ROI holding uv
     rois = np.array([tuple(e.roi) for e in out], np.float64).reshape(-1, 4)  # (row0, row1, col0, col1)
-    bare = (~ok & ~(wander > 0) & (fitted | np.array([e.status == "not_specular" for e in out], bool))
+    bare = (~ok & ~(wander > 0) & (fitted | np.array([e.status in ("not_specular", "too_small") for e in out], bool))
             & (rois[:, 2] <= uv[0]) & (uv[0] < rois[:, 3]) & (rois[:, 0] <= uv[1]) & (uv[1] < rois[:, 1]))
     for c in np.flatnonzero(bare)[np.argsort(gaps[bare], kind="stable")]:
         region = _bright_region(gray, out[c])
