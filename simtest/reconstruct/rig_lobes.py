@@ -487,7 +487,7 @@ def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarra
         return None
     if free.any():
         return int(np.flatnonzero(free)[np.argmin(gaps[free])]), None
-    # no wander to measure (no closed isophote; a not_specular lobe has none either), its ROI holding uv
+    # no wander to measure (no closed isophote; a not_specular or too_small lobe has none either), its ROI holding uv
     rois = np.array([tuple(e.roi) for e in out], np.float64).reshape(-1, 4)  # (row0, row1, col0, col1)
     bare = (~ok & ~(wander > 0) & (fitted | np.array([e.status in ("not_specular", "too_small") for e in out], bool))
             & (rois[:, 2] <= uv[0]) & (uv[0] < rois[:, 3]) & (rois[:, 0] <= uv[1]) & (uv[1] < rois[:, 1]))
