@@ -323,6 +323,60 @@ def test_correlation_area_of_smoothed_white_noise(s):
     assert expected / 1.6 < np.median(areas) < 1.6 * expected
 
 
+def _correlation_area_by_lags(r, sel, shape, step):
+    """_correlation_area's definition summed lag by lag (no FFT): the reference of the test below."""
+    Hs, Ws = -(-shape[0] // step), -(-shape[1] // step)
+    rows, cols = np.divmod(np.asarray(sel), shape[1])
+    R, M = np.zeros((Hs, Ws)), np.zeros((Hs, Ws))
+    R[rows // step, cols // step] = r - np.mean(r)
+    M[rows // step, cols // step] = 1.0
+    lags, pairs, prods = [], [], []
+    for dy in range(-Hs + 1, Hs):
+        for dx in range(-Ws + 1, Ws):
+            a = (slice(max(0, -dy), Hs - max(0, dy)), slice(max(0, -dx), Ws - max(0, dx)))
+            b = (slice(max(0, dy), Hs - max(0, -dy)), slice(max(0, dx), Ws - max(0, -dx)))
+            lags.append(np.hypot(dy, dx))
+            pairs.append(float((M[a] * M[b]).sum()))
+            prods.append(float((R[a] * R[b]).sum()))
+    lags, pairs, prods = np.rint(lags).astype(int), np.array(pairs), np.array(prods)
+    n0 = pairs[np.flatnonzero(lags == 0)[0]]
+    var = prods[np.flatnonzero(lags == 0)[0]] / max(n0, 1.0)
+    if not var > 0:
+        return 1.0
+    use = pairs > n0 / 8.0
+    acf = np.where(use, prods / np.maximum(pairs, 1.0), 0.0) / var
+    cut = min(Hs, Ws) // 2 + 1
+    for k in range(1, min(Hs, Ws) // 2 + 1):  # the radial mean's first zero (or empty ring)
+        ring = use & (lags == k)
+        if not ring.any() or acf[ring].mean() <= 0:
+            cut = k
+            break
+    return max(float(acf[use & (lags < cut)].sum()), 1.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(h=st.integers(2, 24), w=st.integers(2, 24), step=st.integers(1, 3), keep=st.floats(0.2, 1.0),
+       blur=st.floats(0.0, 3.0), seed=st.integers(0, 2**31 - 1))
+def test_correlation_area_is_its_lag_by_lag_definition(h, w, step, keep, blur, seed):
+    # the FFT's zero padding is long enough that no lag wraps round, and the pair counts are exact:
+    # the same area as the lags summed one by one, to rounding (1e-9 relative: sums of at most
+    # 24 x 24 products of unit-variance residuals)
+    from scipy.ndimage import gaussian_filter
+    from simtest.reconstruct.lightaware.solve import _correlation_area
+
+    rng = np.random.default_rng(seed)
+    shape = (h * step, w * step)
+    z = rng.normal(size=(h, w))
+    z = gaussian_filter(z, blur) if blur else z
+    on = rng.random((h, w)) < keep
+    on.flat[rng.integers(on.size)] = True
+    rr, cc = np.nonzero(on)
+    sel = (rr * step) * shape[1] + cc * step
+    r = z[rr, cc]
+    assert _correlation_area(r, sel, shape, step) == pytest.approx(
+        _correlation_area_by_lags(r, sel, shape, step), rel=1e-9)
+
+
 @settings(max_examples=80, deadline=None)
 @given(sx=st.floats(2.0, 40.0), sy=st.floats(2.0, 40.0), peak=st.floats(20.0, 255.0),
        cx=st.floats(0.0, 64.0), cy=st.floats(0.0, 64.0), theta=st.floats(0.0, 3.2))

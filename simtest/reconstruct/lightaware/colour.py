@@ -23,9 +23,8 @@ def _border_band(shape) -> np.ndarray:
     its smaller side over :data:`_BODY_BAND_DIVISOR`, 1 to :data:`_BODY_BAND_MAX` px. (H, W) bool."""
     h, w = int(shape[0]), int(shape[1])
     b = int(np.clip(min(h, w) // _BODY_BAND_DIVISOR, 1, _BODY_BAND_MAX))
-    ring = np.zeros((h, w), bool)
-    ring[:b] = ring[-b:] = True
-    ring[:, :b] = ring[:, -b:] = True
+    ring = np.ones((h, w), bool)
+    ring[b:-b, b:-b] = False
     return ring
 
 
@@ -175,16 +174,17 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
     if min(v.shape[:2]) < 2 * k:
         return None
     inside = ndi.minimum_filter((v > 0).any(axis=2), size=k) & ~ndi.maximum_filter(clipped, size=k)
-    smooth = np.stack([ndi.uniform_filter(v[..., c], k, mode="nearest") for c in range(3)], axis=-1)
-    fluct = v - smooth
-    use = inside
+    # channels first, (3, H * W): the masked 3 x 3 sums below run over contiguous rows
+    smooth = np.stack([ndi.uniform_filter(v[..., c], k, mode="nearest") for c in range(3)]).reshape(3, -1)
+    fluct = np.moveaxis(v, -1, 0).reshape(3, -1) - smooth
+    use = inside = inside.ravel()
     w = None
     for _ in range(_FLUCTUATION_PASSES):
-        if np.count_nonzero(use) < _FLUCTUATION_MIN_PIXELS:
+        if (count := np.count_nonzero(use)) < _FLUCTUATION_MIN_PIXELS:
             return None
-        a0 = np.linalg.svd(smooth[use], full_matrices=False)[2][0]
-        X = fluct[use]
-        R = X.T @ X / len(X)
+        # a0 (the smooth colours' leading right singular vector) and R: 3 x 3 sums over the mask, no copies
+        a0 = np.linalg.eigh((smooth * use) @ smooth.T)[1][:, -1]
+        R = (fluct * use) @ fluct.T / count
         R = R + 1e-12 * float(np.trace(R)) * np.eye(3)  # a texture-free, noise-free ROI: R ~ 0
         C = np.column_stack([a0, np.ones(3)])
         try:
@@ -192,7 +192,7 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
             w = RiC @ np.linalg.solve(C.T @ RiC, np.array([0.0, 1.0]))
         except np.linalg.LinAlgError:
             return None
-        spec = smooth @ w
+        spec = w @ smooth
         peak = max(float(spec[inside].max()), 0.0)
         new = inside & (spec <= _BODY_TRIM_SHARE * peak)
         if np.array_equal(new, use):

@@ -36,14 +36,21 @@ class PlaneVerdict:
         self.m, self.rig, self.x, self.n0, self.e1, self.e2 = m, rig, x, n0, e1, e2
         self.n_hat, self.h_hat, self.rough_hat = n_hat, h_hat, rough_hat
         self.how, self.floor_level = how, floor_level
+        self._last = None  # (key, (r, J)) of the last at_solution
 
     def at_solution(self, p_hat, nb, e1_, e2_):
-        """Residuals and covariance Jacobian at the solution x, derivatives about (nb, e1_, e2_)."""
-        m = self.m
-        m.resjac_at(self.x, self.n0, self.e1, self.e2, grad=False)
-        if m.general:  # the diffuse column's derivative by differences about (nb, e1_, e2_)
-            return m.state["r"], m.jac_general(p_hat, nb, e1_, e2_, _normal_derivs(p_hat, nb, e1_, e2_)[1], None)
-        return m.state["r"], m.jac_of(_normal_derivs(p_hat, nb, e1_, e2_)[1], None, True)
+        """Residuals and covariance Jacobian at the solution x, derivatives about (nb, e1_, e2_) (read-only;
+        the estimate's covariance and the misfit tests ask for the same point: computed once)."""
+        key = b"".join(np.asarray(a, np.float64).tobytes() for a in (p_hat, nb, e1_, e2_))
+        if self._last is None or self._last[0] != key:
+            m = self.m
+            m.resjac_at(self.x, self.n0, self.e1, self.e2, grad=False)
+            dn = _normal_derivs(p_hat, nb, e1_, e2_)[1]  # general: the diffuse column's by differences about nb
+            J = m.jac_general(p_hat, nb, e1_, e2_, dn, None) if m.general else m.jac_of(dn, None, True)
+            r = m.state["r"].copy()
+            r.flags.writeable = J.flags.writeable = False
+            self._last = (key, (r, J))
+        return self._last[1]
 
     def _jacobian(self):
         """The covariance Jacobian at the solution, about its own normal."""
@@ -147,10 +154,8 @@ class PlaneVerdict:
             # at least the cluster jackknife's over the blocks; the depth's sigma grows by the same factor
             J = self._jacobian()
             for block in cluster_blocks(m.keep.shape, texture=wide or self.how in (None, "darkest_channel")):
-                cov = _cluster_covariance(J, r0, m.sel, m.keep.shape, block)
-                if cov is None:
-                    continue
-                csig = math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
+                cov = _cluster_covariance(J, r0, m.sel, m.keep.shape, block)  # None: no test
+                csig = -1.0 if cov is None else math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
                 if csig > est.normal_sigma_deg:
                     scale *= csig / est.normal_sigma_deg
                     est = replace(est, normal_sigma_deg=csig)

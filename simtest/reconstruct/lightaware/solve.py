@@ -435,12 +435,10 @@ def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndar
     G = int(cid.max()) + 1 if len(cid) else 0
     if G < 2:
         return None
-    g = J * np.asarray(r, dtype=np.float64)[:, None]
     k = J.shape[1]
-    S = np.stack([np.bincount(cid, g[:, j], minlength=G) for j in range(k)], axis=1)
-    A = J.T @ J
-    JJ = (J[:, :, None] * J[:, None, :]).reshape(len(J), k * k)
-    Mc = np.stack([np.bincount(cid, JJ[:, j], minlength=G) for j in range(k * k)], axis=1).reshape(G, k, k)
+    cols = np.column_stack([J * np.asarray(r, np.float64)[:, None], np.einsum("ni,nj->nij", J, J).reshape(len(J), -1)])
+    sums = np.stack([np.bincount(cid, c, minlength=G) for c in cols.T], axis=1)  # per block: J_c^T r_c, J_c^T J_c
+    S, Mc, A = sums[:, :k], sums[:, k:].reshape(G, k, k), J.T @ J
     # a block whose removal leaves J^T J (near) singular is counted as the plain sandwich counts it
     rest = A[None] - Mc
     ev = np.linalg.eigvalsh(rest)
@@ -454,28 +452,25 @@ def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndar
 
 def _correlation_area(r, sel, shape, step: int) -> float:
     """Fitted pixels per independent residual (>= 1): the residuals' 2-D autocorrelation summed within
-    its radial mean's first zero crossing (A. D. Sokal's window, NATO ASI Series B 361, 1997)."""
+    its radial mean's first zero crossing (A. D. Sokal's window, NATO ASI Series B 361, 1997). One real FFT
+    of the residuals and the pixels, zero-padded to a fast length past 2 n - 1: no lag wraps round."""
+    fft = require("scipy.fft")  # when first needed: scipy slows the start
     Hs, Ws = -(-shape[0] // step), -(-shape[1] // step)
     rows, cols = np.divmod(np.asarray(sel), shape[1])
-    R = np.zeros((Hs, Ws))
-    mask = np.zeros((Hs, Ws))
-    R[rows // step, cols // step] = r - float(np.mean(r))
-    mask[rows // step, cols // step] = 1.0
-    size = (2 * Hs, 2 * Ws)  # zero padding: no lag wraps round
-    pairs = np.fft.irfft2(np.abs(np.fft.rfft2(mask, s=size)) ** 2, s=size)
-    prods = np.fft.irfft2(np.abs(np.fft.rfft2(R, s=size)) ** 2, s=size)
+    both = np.zeros((2, Hs, Ws))  # the pixels fitted (1) and their residuals about the mean
+    both[:, rows // step, cols // step] = np.stack([np.ones(len(r)), r - float(np.mean(r))])
+    size = (fft.next_fast_len(2 * Hs - 1, real=True), fft.next_fast_len(2 * Ws - 1, real=True))
+    pairs, prods = fft.irfft2(np.abs(fft.rfft2(both, s=size)) ** 2, s=size)
+    pairs = np.rint(pairs)  # counts of pixel pairs at each lag (the FFT's rounding taken off)
     var = float(prods[0, 0]) / max(float(pairs[0, 0]), 1.0)
     if not var > 0:
         return 1.0
-    dy = np.fft.fftfreq(size[0], 1.0 / size[0])
-    dx = np.fft.fftfreq(size[1], 1.0 / size[1])
-    rad = np.rint(np.hypot(dy[:, None], dx[None, :])).astype(int)
+    rad = np.rint(np.hypot(*np.meshgrid(*(np.fft.fftfreq(n, 1.0 / n) for n in size), indexing="ij"))).astype(int)
     use = pairs > 0.5 * float(pairs[0, 0]) / 4.0  # lags with at least an eighth of the pairs
     acf = np.where(use, prods / np.maximum(pairs, 1.0), 0.0) / var
     nrad = int(min(Hs, Ws) // 2)
-    radial = np.bincount(rad[use].ravel(), acf[use].ravel(), minlength=nrad + 1)[:nrad + 1]
-    counts = np.bincount(rad[use].ravel(), minlength=nrad + 1)[:nrad + 1]
-    radial = radial / np.maximum(counts, 1)
+    counts = np.bincount(rad[use], minlength=nrad + 1)[:nrad + 1]
+    radial = np.bincount(rad[use], acf[use], minlength=nrad + 1)[:nrad + 1] / np.maximum(counts, 1)
     zero = np.flatnonzero((radial[1:] <= 0) | (counts[1:] == 0))
     cut = int(zero[0]) + 1 if len(zero) else nrad + 1
     return max(float(acf[use & (rad < cut)].sum()), 1.0)
