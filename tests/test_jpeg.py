@@ -130,15 +130,17 @@ def test_sigma_tracks_the_measured_error(quality, lo, hi):
 # multiple (jpeg.UNIMODAL_SHARE)
 @example(oy=0, ox=1, quality=30, seed=481)
 @example(oy=0, ox=1, quality=30, seed=202)
+@example(oy=1, ox=1, quality=30, seed=311)
 def test_crops_find_the_shifted_grid(oy, ox, quality, seed):
     d = jpeg(textured(seed), quality)
     c = d[oy:, ox:]
     assert J.jpeg_grid(c) == ((8 - oy) % 8, (8 - ox) % 8)
     # other blocks (the crop loses a block row or column): the dead frequencies' variance is
     # the smallest of the few identified ones; below quality 50 a borderline frequency (~40
-    # coefficients outside its zero bin) may be identified in one and not the other, which moved
-    # sigma by up to 27 % (seed 912, quality 30); above, by under 15 %
-    assert J.quantisation_sigma(c) == pytest.approx(J.quantisation_sigma(d), rel=0.35 if quality < 50 else 0.2)
+    # coefficients outside its zero bin) may be identified in one and not the other, which moves
+    # sigma by up to 36 % at quality 30 (800 crops of seeds 0 to 399: 1.25 % beyond 27 %, the worst
+    # seed 311, whose step 23 at (2, 0) the crop misses; 5.3 -> 7.2); above, by under 15 %
+    assert J.quantisation_sigma(c) == pytest.approx(J.quantisation_sigma(d), rel=0.4 if quality < 50 else 0.2)
 
 
 @settings(max_examples=15, deadline=None)
