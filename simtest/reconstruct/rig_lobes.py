@@ -380,15 +380,15 @@ def _pair_rows(est, camera, rig, region, pair, others: np.ndarray, split: list |
 
 
 def fused_lobe_candidates(gray, estimates, camera, rig, among=None) -> list[int]:
-    """The indexes of the rejected candidates in :data:`SPLIT_STATUSES` (of the indexes ``among``, default all)
-    whose region reaches along the rig's curve (``gray``: the frame's luma), to be fitted with the plane only and
-    split; empty without a rig off the camera centre. A ``not_specular`` one only under two guides, its tops
-    stretched along the curve and its peak significant (:func:`_significant`; its colour is the caller's check)."""
+    """The indexes of the rejected candidates in :data:`SPLIT_STATUSES` (of ``among``, default all) whose region
+    reaches along the rig's curve (``gray``: the frame's luma), to be fitted with the plane only and split (none
+    without a rig off the camera centre); each one's peak significant (:func:`_significant`: the detector's rejects
+    were never height-checked), a ``not_specular`` one only under two guides, its tops stretched along the curve."""
     if not _offset_rig(rig):
         return []
     two = len(rig.positions) == 2  # three or more guides' tops make a polygon, not a line
     return [i for i, e in enumerate(estimates) if (among is None or i in among) and splittable(e) and not e.ok
-            and (e.status != "not_specular" or (two and _significant(gray, e)))
+            and (two or e.status != "not_specular") and _significant(gray, e)
             and _along_the_rig(gray, e, camera, rig, two and e.status == "not_specular")]
 
 
