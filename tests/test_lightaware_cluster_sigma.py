@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from simtest.reconstruct.lightaware.solve import (CLUSTER_PX, MIN_CLUSTERS, _cluster_covariance, _covariance,
                                                  cluster_blocks)
@@ -109,3 +111,33 @@ def test_cluster_blocks_keep_enough_blocks():
             assert -(-shape[0] // b) * -(-shape[1] // b) >= MIN_CLUSTERS
     # a projected fit's residual has lost the texture: the block and the macroblock only
     assert cluster_blocks((406, 406), texture=False) == (8, 16)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(4, 70), st.integers(4, 70), st.sampled_from(CLUSTER_PX[:3]), st.integers(1, 6),
+       st.floats(0.05, 1.0), st.integers(0, 2**31 - 1))
+def test_the_cluster_covariance_is_its_block_by_block_definition(h, w, block, k, frac, seed):
+    # the jackknife written out one block at a time (a solve per block, blocks in raster order),
+    # against the bincount sums of the upper triangle: 1e-9 relative, the solves' rounding on
+    # well-conditioned random Jacobians (the two sum the same products in the same order)
+    rng = np.random.default_rng(seed)
+    sel = np.flatnonzero(rng.random((h, w)) < frac)
+    if len(sel) <= k:
+        return
+    J, r = rng.normal(size=(len(sel), k)), rng.normal(size=len(sel))
+    rows, cols = np.divmod(sel, w)
+    cid = (rows // block) * -(-w // block) + cols // block
+    A, d = J.T @ J, []
+    for c in np.unique(cid):
+        m = cid == c
+        rest = A - J[m].T @ J[m]
+        ev = np.linalg.eigvalsh(rest)
+        solve = np.linalg.solve(rest, J[m].T @ r[m]) if ev[0] > 1e-9 * ev[-1] else np.linalg.inv(A) @ (J[m].T @ r[m])
+        d.append(solve)
+    got = _cluster_covariance(J, r, sel, (h, w), block)
+    if len(d) < 2:
+        assert got is None
+        return
+    D = np.array(d) - np.mean(d, axis=0)
+    want = D.T @ D * (len(d) - 1.0) / len(d)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())

@@ -430,17 +430,17 @@ def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndar
     if unit_cov is None:
         return None
     rows, cols = np.divmod(np.asarray(sel), shape[1])
-    bw = -(-shape[1] // block)
-    _, cid = np.unique((rows // block) * bw + cols // block, return_inverse=True)
-    G = int(cid.max()) + 1 if len(cid) else 0
-    if G < 2:
+    cid = (rows // block) * -(-shape[1] // block) + cols // block  # raster order of the blocks
+    held = np.flatnonzero(np.bincount(cid))  # the blocks that hold pixels
+    if (G := len(held)) < 2:
         return None
-    k = J.shape[1]
-    cols = np.column_stack([J * np.asarray(r, np.float64)[:, None], np.einsum("ni,nj->nij", J, J).reshape(len(J), -1)])
-    sums = np.stack([np.bincount(cid, c, minlength=G) for c in cols.T], axis=1)  # per block: J_c^T r_c, J_c^T J_c
-    S, Mc, A = sums[:, :k], sums[:, k:].reshape(G, k, k), J.T @ J
+    k, Jt = J.shape[1], np.ascontiguousarray(J.T)
+    iu, ju = np.triu_indices(k)  # J_c^T J_c is symmetric: its upper triangle summed, then mirrored
+    X = np.concatenate([Jt * np.asarray(r, np.float64), Jt[iu] * Jt[ju]])
+    sums = np.stack([np.bincount(cid, x)[held] for x in X], axis=1)  # per block: J_c^T r_c, J_c^T J_c
+    S, A, rest = sums[:, :k], J.T @ J, np.empty((G, k, k))
+    rest[:, iu, ju] = rest[:, ju, iu] = A[iu, ju] - sums[:, k:]  # J^T J without each block's rows
     # a block whose removal leaves J^T J (near) singular is counted as the plain sandwich counts it
-    rest = A[None] - Mc
     ev = np.linalg.eigvalsh(rest)
     ok = ev[:, 0] > 1e-9 * np.maximum(ev[:, -1], 1e-300)
     D = S @ unit_cov.T
