@@ -133,6 +133,31 @@ def test_a_weak_lobes_twin_is_the_other_guides_highlight_where_the_rig_puts_it(t
     assert not rig_twins(cam, GUIDES_MM, moved, yes, both, none)[0]
     assert rig_twins(cam, GUIDES_MM, moved, yes, np.array([0.0, away - PAIR_TOL_PX + 0.3]), none)[0]
     assert rig_twins(cam, GUIDES_MM, moved, yes, np.array([away - PAIR_TOL_PX + 0.3, 0.0]), none)[0]
+    # a wander as large as the two BPs' distance admits a peak from any direction: it confirms no twin
+    assert not rig_twins(cam, GUIDES_MM, moved, yes, np.array([0.0, np.linalg.norm(moved[1] - uv0)]), none)[0]
+
+
+@settings(max_examples=40, deadline=None)
+@given(tilt=st.floats(0.0, 45.0), az=st.floats(0.0, 360.0), h=st.floats(5.0, 45.0),
+       f=st.floats(60.0, 400.0), first=st.integers(0, 1), push=st.floats(3.0, 6.0), pull=st.floats(0.3, 0.7))
+def test_an_isophote_pulled_towards_an_enclosed_peak_pairs_it_only_where_the_rig_puts_it(tilt, az, h, f, first,
+                                                                                       push, pull):
+    # a weak lobe's isophote that holds another peak has its centroid pulled towards that peak (here
+    # `pull` of the way), so the BP's wander measured on it grows with the very distance the pairing
+    # tests; across the line to the peak the pull is nil: the other guide's highlight where the rig
+    # puts it is a partner, the same peak pushed off the rig's curves stays a merge
+    _, cam, _, (uv0, uv1) = _exact_pair(tilt, az, h, f, first)
+    gap = float(np.linalg.norm(uv1 - uv0))
+    assume(gap > 4 * (PAIR_TOL_PX + push))
+    off = uv1 + push * np.array([-(uv1 - uv0)[1], (uv1 - uv0)[0]]) / gap
+    (curve,) = other_guide_curves(cam, GUIDES_MM, uv0[None], [gap + 10.0])
+    assume(np.min(np.linalg.norm(curve - off, axis=1)) > PAIR_TOL_PX + 0.3)  # (0.3: the curve's 0.5 px step)
+    t = np.linspace(0, 2 * np.pi, 120, endpoint=False)
+    for peak, partner in ((uv1, True), (off, False)):
+        centre = uv0 + pull * (peak - uv0)  # a circle's 120-gon: its centroid is its centre
+        ring = centre + (max(pull, 1 - pull) * np.linalg.norm(peak - uv0) + 2.0) * np.stack([np.cos(t), np.sin(t)], 1)
+        pts = np.stack([uv0, peak])
+        assert encloses_only_partners(cam, GUIDES_MM, uv0, ring, pts, np.zeros(2, bool), np.zeros(2)) is partner
 
 
 @settings(max_examples=60, deadline=None)

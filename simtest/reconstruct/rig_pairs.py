@@ -129,7 +129,9 @@ def encloses_only_partners(camera, positions_mm, bp_uv, polygon_uv, points_uv, e
         The points that are no highlight's BP (peaks the colour checks refused).
     wander_px : ndarray of shape (K,), optional
         Each point's :func:`bp_wander_px` (0 where it has no isophote), px; the tolerance of a point is
-        :data:`PAIR_TOL_PX` plus its wander and the polygon's own (None: no wander).
+        :data:`PAIR_TOL_PX` plus its wander and the polygon's own across the line from the BP to the point
+        (None: no wander). Along that line the polygon's centroid is pulled towards the very lobes it
+        encloses, and a shift of the BP along a curve moves no point off it.
 
     Returns
     -------
@@ -142,10 +144,12 @@ def encloses_only_partners(camera, positions_mm, bp_uv, polygon_uv, points_uv, e
     if not inside.any():
         return True
     wander = np.zeros(len(pts)) if wander_px is None else np.asarray(wander_px, np.float64).reshape(-1)
-    tol = PAIR_TOL_PX + bp_wander_px(bp, polygon_uv) + wander[inside]
+    off = pts[inside] - bp
+    own = _centroid_offset(bp, polygon_uv) if wander_px is not None else np.zeros(2)
+    tol = PAIR_TOL_PX + np.abs(off[:, 0] * own[1] - off[:, 1] * own[0]) / np.hypot(*off.T) + wander[inside]
     reach = float(np.hypot(*(np.asarray(polygon_uv) - bp).T).max()) + float(tol.max())
     (curve,) = other_guide_curves(camera, positions_mm, bp[None], [reach])
-    return bool(len(curve)) and bool((_gaps_to(curve, pts[inside]) <= tol).all())
+    return bool(len(curve)) and bool(_placed(curve, pts[inside], bp, tol).all())
 
 
 def rig_twins(camera, positions_mm, bps_uv, pool, wander_px, which) -> np.ndarray:
@@ -186,8 +190,14 @@ def rig_twins(camera, positions_mm, bps_uv, pool, wander_px, which) -> np.ndarra
     for k, curve in zip(ask, other_guide_curves(camera, positions_mm, bps[ask], reach)):
         others = np.linalg.norm(cand - bps[k], axis=1) > PAIR_TOL_PX
         if len(curve) and others.any():
-            out[k] = bool((_gaps_to(curve, cand[others]) <= PAIR_TOL_PX + wander[k] + w_cand[others]).any())
+            out[k] = bool(_placed(curve, cand[others], bps[k], PAIR_TOL_PX + wander[k] + w_cand[others]).any())
     return out
+
+
+def _placed(curve_uv: np.ndarray, points_uv: np.ndarray, bp_uv, tol_px) -> np.ndarray:
+    """Which points (K,) lie within ``tol_px`` of a BP's curve where that tells: the curve starts beside the BP,
+    so a tolerance as large as a point's distance from the BP admits it from any direction and confirms nothing."""
+    return (_gaps_to(curve_uv, points_uv) <= tol_px) & (tol_px < np.hypot(*(points_uv - np.asarray(bp_uv)).T))
 
 
 def _gaps_to(curve_uv: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
@@ -212,11 +222,16 @@ def bp_wander_px(bp_uv, polygon_uv) -> float:
     BP's distance from its centroid measures that wander on each lobe, whatever its width. 0 for a
     degenerate polygon.
     """
+    return float(np.hypot(*_centroid_offset(bp_uv, polygon_uv)))
+
+
+def _centroid_offset(bp_uv, polygon_uv) -> np.ndarray:
+    """The area centroid of a closed polygon (P, 2) less the BP (u, v), px (2,); 0 for a degenerate polygon."""
     poly = np.asarray(polygon_uv, np.float32).reshape(-1, 1, 2)
     m = cv2.moments(poly) if len(poly) >= 3 else {"m00": 0.0}
     if not abs(m["m00"]) > 0:
-        return 0.0
-    return float(np.hypot(m["m10"] / m["m00"] - float(bp_uv[0]), m["m01"] / m["m00"] - float(bp_uv[1])))
+        return np.zeros(2)
+    return np.array([m["m10"] / m["m00"] - float(bp_uv[0]), m["m01"] / m["m00"] - float(bp_uv[1])])
 
 
 def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[int, int, float], ...]]:
