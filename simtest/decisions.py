@@ -503,6 +503,16 @@ PAIR_TOL_PX = decision(
     "Largest distance between a peak's region and the rig's predicted curve for it to be another "
     "guide's highlight: half a pixel of BP rounding per axis and about a pixel of the detection's "
     "blur (as OWN_RADIUS_PX).", basis="physics", stage=_V)
+GUIDE_SEEN_REL = decision(
+    "GUIDE_SEEN_REL", 0.5, "share of a guide's predicted lobe height",
+    "A plane fit predicts every guide's specular point and how high its lobe rises there relative to "
+    "the fitted highlight's (the rig's falloff and profile, the plane's geometry). Where another "
+    "guide's lobe is predicted in the frame at least this share as high "
+    "as the fitted one, the image must rise at least this share of the predicted height within the "
+    "fitted lobe's half-size of that point; else the fit gave the lobe to the wrong guide (one lobe "
+    "alone hardly tells which guide lit it). The share leaves room for the albedo, shading and "
+    "Fresnel differences between the two points, which the plane model leaves out.",
+    basis="physics", stage=_L)
 TOP_CORE_SHARE = decision(
     "TOP_CORE_SHARE", 0.5, "share of a clipped top's largest distance from its edge",
     "A guide's specular point is where its lobe peaks, so it lies inside its clipped top, and away from the "

@@ -16,8 +16,8 @@ import numpy as np
 from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
-from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, CLIP_NOISE_FROM_REL, ISOCURVE_ISOVALUES, LOBE_EDGE_REL,
-                               LOBE_ROI_MISMATCH, PAIR_TOL_PX, SIGMA_MARGIN)
+from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, CLIP_NOISE_FROM_REL, GUIDE_SEEN_REL, ISOCURVE_ISOVALUES,
+                               LOBE_EDGE_REL, LOBE_ROI_MISMATCH, PAIR_TOL_PX, SIGMA_MARGIN)
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi, border_ring
@@ -29,7 +29,7 @@ from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit,
                                             quadric_fit, refine_isophote_points)
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
                                            depth_within_ceiling)
-from simtest.reconstruct.rig_pairs import pair_misfit_px, pair_starts
+from simtest.reconstruct.rig_pairs import guide_specular_points, pair_misfit_px, pair_partners, pair_starts
 
 #: The photometric fit's statuses after which the curved-patch fits run by default (the plane is
 #: not the ROI's surface; docs/decisions/light-aware-recommendation.md).
@@ -93,7 +93,10 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     pair_starts : tuple of (int, int, float)
         Guides and depth at which the rig puts another guide's highlight on another highlight
         (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a recommendable fit that misplaces it
-        is refitted from there too, the refit kept where it is ok and places it.
+        is refitted from there too, then on the ROI that holds both highlights (:func:`_pair_roi`), a
+        refit kept where it is ok and places it; a fit with a depth that still misplaces it becomes
+        ``guide_misfit`` (one guide's lobe alone hardly tells which guide lit it), as is one that puts
+        another guide's lobe in the frame where the image shows none (:func:`_unseen_guide`).
     colour : bool, optional
         Fit on the ROI's three linear channels, the body colours projected out (None:
         :func:`colour_fit_applies`).
@@ -137,6 +140,21 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                            dict(pkw, pair_starts=tuple(pair_starts)))
         if alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
             pf = _la.plane._note(alt, "refitted from the depth its pair with another guide's highlight gives")
+        elif (span := _pair_roi(big, est.bp_px, camera, rig, pair_starts, img.shape)) is not None:
+            # one guide's lobe alone leaves which guide lit it to the fit: the swapped guide at another
+            # depth images nearly the same lobe. The other guide's highlight, in the ROI, tells them apart
+            joint = _photometric(img, gray, span, est, camera, rig, response, colour, saturation_level,
+                                 dict(pkw, pair_starts=tuple(pair_starts)))
+            if joint.ok and _fits_the_pair(joint, est.bp_px, camera, rig, pair_starts):
+                pf = _la.plane._note(joint, f"refitted on the ROI that holds its pair with another guide's "
+                                            f"highlight ({span.shape[1]} x {span.shape[0]} px)")
+        if pf.distance_mm is not None and not _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts):
+            gap = pair_misfit_px(camera, rig, est.bp_px, pair_starts, pf.normal, pf.distance_mm)
+            pf = pf.without_depth("guide_misfit", f"its plane puts the paired guide's specular point {gap:.3g} px "
+                                                  f"from the highlight the rig pairs with this one; {pf.detail}")
+    unseen = _unseen_guide(pf, est, gray, saturation_level, big, camera, rig) if pf.ok and pf.distance_mm else ""
+    if unseen:
+        pf = pf.without_depth("guide_misfit", f"{unseen}; {pf.detail}")
     out["photometric_fit"] = pf
     _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level, cubic=cubic,
                  nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric)
@@ -153,6 +171,52 @@ def _recommendable(fit: LightAwareEstimate, est, camera, rig, nominal_depth_mm: 
     beside = dataclasses.replace(fit, bp_ray_error_deg=bp_ray_error_deg(
         ray, bp_error_depth_mm(fit, nominal_depth_mm), rig))
     return SIGMA_MARGIN * fit.normal_sigma_deg < _bp_ray_error_beside(est, beside)
+
+
+def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
+    """The smallest ROI that holds ``big`` and a square of its size about each partner that ``starts`` place
+    (:func:`~simtest.reconstruct.rig_pairs.pair_partners`); None where no partner lies in the image."""
+    half = max(big.shape) / 2.0
+    boxes = [Roi.around(uv, half, shape) for uv in pair_partners(camera, rig, bp_uv, starts)
+             if np.isfinite(uv).all() and 0 <= uv[0] < shape[1] and 0 <= uv[1] < shape[0]]
+    if not boxes:
+        return None
+    return Roi(min(b.row0 for b in (big, *boxes)), max(b.row1 for b in (big, *boxes)),
+               min(b.col0 for b in (big, *boxes)), max(b.col1 for b in (big, *boxes)))
+
+
+def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, big: Roi, camera, rig) -> str:
+    """Why the image refutes a plane fit (:data:`~simtest.decisions.GUIDE_SEEN_REL`): another guide's lobe
+    predicted in the frame at least that share as high as the fitted one, where the image within the
+    detected highlight's half-size rises less than that share of its predicted height (the height of the
+    BP above the median of ``big``'s border) and reaches no clipped pixel (``clip``: the values' clip
+    level, None without); "" where none."""
+    if len(rig.positions) < 2:
+        return ""
+    model = _la.model
+    pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+    h, w = gray.shape[:2]
+    inside = np.isfinite(pts).all(axis=1) & (pts >= 0).all(axis=1) & (pts[:, 0] <= w - 1) & (pts[:, 1] <= h - 1)
+    bp = np.asarray(est.bp_px, np.float64)
+    own = int(np.nanargmin(np.linalg.norm(np.where(np.isfinite(pts), pts, np.inf) - bp, axis=1)))
+    rays = model._rays(camera, np.vstack([bp[None], pts[inside]]))
+    spec = model.plane_rig_intensity(rays, fit.normal, fit.distance_mm, rig, fit.roughness)
+    if not spec[0] > 0:
+        return ""
+    vals = gray[big.slices]
+    base = float(np.median(border_ring(vals)))
+    height = float(gray[int(round(bp[1])), int(round(bp[0]))]) - base  # (a clipped BP: a lower bound)
+    radius = max(Roi(*(int(v) for v in est.roi)).shape) / 2.0
+    for j, uv, s in zip(np.flatnonzero(inside), pts[inside], spec[1:]):
+        rel = float(s / spec[0])
+        if j == own or rel < GUIDE_SEEN_REL:
+            continue
+        win = gray[Roi.around(uv, radius, gray.shape).slices]
+        rise = float(win.max() - np.median(win))
+        if rise < GUIDE_SEEN_REL * rel * height and not (clip is not None and win.max() >= clip):
+            return (f"its plane puts guide {j + 1}'s specular point at ({uv[0]:.0f}, {uv[1]:.0f}) px, its lobe "
+                    f"{rel:.2g} times as high as this one's, where the image rises {rise:.3g} of {height:.3g}")
+    return ""
 
 
 def _fits_the_pair(fit: LightAwareEstimate, bp_uv, camera, rig, starts) -> bool:

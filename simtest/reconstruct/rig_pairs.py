@@ -29,8 +29,8 @@ from simtest.reconstruct.evidence_pixels import ellipse_level
 from simtest.reconstruct.isophote import polygon_contains
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
-           "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_starts", "encloses_only_partners",
-           "bp_wander_px", "estimate_wander_px", "rig_twins"]
+           "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_partners", "pair_starts",
+           "encloses_only_partners", "bp_wander_px", "estimate_wander_px", "rig_twins"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
 DEPTH_SAMPLES = 256
@@ -353,15 +353,39 @@ def pair_misfit_px(camera, rig, bp_uv, starts, normal, distance_mm: float) -> fl
     where guide j lies behind the plane.
     """
     cam = _model(camera)
-    ray = unit(np.asarray(cam.pixel_to_ray(np.asarray(bp_uv, np.float64).reshape(1, 2)), np.float64)[0])
-    L = np.asarray(rig.positions, np.float64).reshape(-1, 3)
     on_plane = guide_specular_points(cam, rig, normal, distance_mm)
     best = np.inf
-    for i, j, d in starts:
-        partner = cam.ray_to_pixel(_curve(ray, L[i], L[j], np.array([d])))[0]
+    for (_, j, _), partner in zip(starts, pair_partners(cam, rig, bp_uv, starts)):
         gap = float(np.linalg.norm(on_plane[j] - partner))
         best = min(best, gap)  # (NaN: guide j behind the plane, never the least)
     return best
+
+
+def pair_partners(camera, rig, bp_uv, starts) -> np.ndarray:
+    """Where each of ``starts`` (:func:`pair_starts`' (i, j, d)) puts guide j's specular point: the BP
+    as guide i's at depth d on the plane whose normal bisects the BP's ray and guide i's direction.
+
+    Parameters
+    ----------
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a model with ``pixel_to_ray`` and ``ray_to_pixel``.
+    rig : LightRig
+        The scope's lights, camera frame, mm.
+    bp_uv : array_like of shape (2,)
+        The BP (u, v), px.
+    starts : sequence of (int, int, float)
+        Guides i and j and the depth d, mm.
+
+    Returns
+    -------
+    ndarray of shape (len(starts), 2)
+        (u, v) px of each partner; NaN where guide j's point is inadmissible (behind the plane).
+    """
+    cam = _model(camera)
+    ray = unit(np.asarray(cam.pixel_to_ray(np.asarray(bp_uv, np.float64).reshape(1, 2)), np.float64)[0])
+    L = np.asarray(rig.positions, np.float64).reshape(-1, 3)
+    return np.array([cam.ray_to_pixel(_curve(ray, L[i], L[j], np.array([d])))[0] for i, j, d in starts],
+                    np.float64).reshape(-1, 2)
 
 
 def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray:

@@ -25,6 +25,11 @@ STATUSES: dict[str, str] = {
                           "withdrawn",
     "patch_misfit": "the quadric patch does not fit the ROI (spatially correlated residuals); "
                     "the normal is kept for the record, the depth withdrawn",
+    "guide_misfit": "the fitted plane puts another guide's specular point where the image shows no "
+                    "highlight of it (away from the highlight the rig pairs with this one, or in the "
+                    "frame where none rises): one guide's lobe alone hardly tells which guide lit it, "
+                    "and the fit took the other guide's plane; the normal is kept for the record, the "
+                    "depth withdrawn",
     "plane_misfit": "the plane model does not fit the ROI (its residuals are spatially correlated, "
                     "or hold a curved patch's pattern); the normal is kept for the record, the "
                     "depth withdrawn",
