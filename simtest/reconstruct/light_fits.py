@@ -94,9 +94,10 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         Guides and depth at which the rig puts another guide's highlight on another highlight
         (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a recommendable fit that misplaces it
         is refitted from there too, then on the ROI that holds both highlights (:func:`_pair_roi`), a
-        refit kept where it is ok and places it; a fit with a depth that still misplaces it becomes
-        ``guide_misfit`` (one guide's lobe alone hardly tells which guide lit it), as is one that puts
-        another guide's lobe in the frame where the image shows none (:func:`_unseen_guide`).
+        refit kept where it is ok and places it; a fit that still puts the partner farther than the
+        highlight's half-size off becomes ``guide_misfit`` (one guide's lobe alone hardly tells which
+        guide lit it), as does an ok highlight's fit that puts another guide's lobe in the frame where
+        the image shows none (:func:`_unseen_guide`).
     colour : bool, optional
         Fit on the ROI's three linear channels, the body colours projected out (None:
         :func:`colour_fit_applies`).
@@ -148,11 +149,12 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             if joint.ok and _fits_the_pair(joint, est.bp_px, camera, rig, pair_starts):
                 pf = _la.plane._note(joint, f"refitted on the ROI that holds its pair with another guide's "
                                             f"highlight ({span.shape[1]} x {span.shape[0]} px)")
-        if pf.distance_mm is not None and not _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts):
-            gap = pair_misfit_px(camera, rig, est.bp_px, pair_starts, pf.normal, pf.distance_mm)
+        gap = pair_misfit_px(camera, rig, est.bp_px, pair_starts, pf.normal, pf.distance_mm) if pf.distance_mm else 0
+        if gap > max(roi.shape) / 2.0:  # off the partner's lobe, not a BP's wander off its specular point
             pf = pf.without_depth("guide_misfit", f"its plane puts the paired guide's specular point {gap:.3g} px "
                                                   f"from the highlight the rig pairs with this one; {pf.detail}")
-    unseen = _unseen_guide(pf, est, gray, saturation_level, big, camera, rig) if pf.ok and pf.distance_mm else ""
+    ok_plane = est.ok and pf.ok and pf.distance_mm is not None
+    unseen = _unseen_guide(pf, est, gray, saturation_level, big, camera, rig) if ok_plane else ""
     if unseen:
         pf = pf.without_depth("guide_misfit", f"{unseen}; {pf.detail}")
     out["photometric_fit"] = pf
@@ -188,9 +190,9 @@ def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
 def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, big: Roi, camera, rig) -> str:
     """Why the image refutes a plane fit (:data:`~simtest.decisions.GUIDE_SEEN_REL`): another guide's lobe
     predicted in the frame at least that share as high as the fitted one, where the image within the
-    detected highlight's half-size rises less than that share of its predicted height (the height of the
-    BP above the median of ``big``'s border) and reaches no clipped pixel (``clip``: the values' clip
-    level, None without); "" where none."""
+    detected highlight's half-size rises less than that share of its predicted height above the median
+    of a ``big``-sized square's border about it (the BP's height, measured the same way) and reaches no
+    clipped pixel (``clip``: the values' clip level, None without); "" where none."""
     if len(rig.positions) < 2:
         return ""
     model = _la.model
@@ -211,9 +213,11 @@ def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, big: Roi
         rel = float(s / spec[0])
         if j == own or rel < GUIDE_SEEN_REL:
             continue
-        win = gray[Roi.around(uv, radius, gray.shape).slices]
-        rise = float(win.max() - np.median(win))
-        if rise < GUIDE_SEEN_REL * rel * height and not (clip is not None and win.max() >= clip):
+        # measured as at the BP: the peak near the point above the median of a ring of big's size about it
+        ring = gray[Roi.around(uv, max(big.shape) / 2.0, gray.shape).slices]
+        peak = float(gray[Roi.around(uv, radius, gray.shape).slices].max())
+        rise = peak - float(np.median(border_ring(ring)))
+        if rise < GUIDE_SEEN_REL * rel * height and not (clip is not None and peak >= clip):
             return (f"its plane puts guide {j + 1}'s specular point at ({uv[0]:.0f}, {uv[1]:.0f}) px, its lobe "
                     f"{rel:.2g} times as high as this one's, where the image rises {rise:.3g} of {height:.3g}")
     return ""
