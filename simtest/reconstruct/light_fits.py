@@ -153,7 +153,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         if gap > max(roi.shape) / 2.0:  # off the partner's lobe, not a BP's wander off its specular point
             pf = pf.without_depth("guide_misfit", f"its plane puts the paired guide's specular point {gap:.3g} px "
                                                   f"from the highlight the rig pairs with this one; {pf.detail}")
-    ok_plane = est.ok and pf.ok and pf.distance_mm is not None
+    ok_plane = getattr(est, "ok", False) and pf.ok and pf.distance_mm is not None
     unseen = _unseen_guide(pf, est, gray, saturation_level, big, camera, rig) if ok_plane else ""
     if unseen:
         pf = pf.without_depth("guide_misfit", f"{unseen}; {pf.detail}")
