@@ -3,13 +3,16 @@ the mirrored normal at the same depth) images nearly the same lobe. Where the ri
 with another guide's, the pair tells them apart: the fit is redone on a ROI that holds both, and a
 plane that still puts the paired guide's specular point elsewhere is a ``guide_misfit``, whose normal is
 not recommended; so is a plane that puts the other guide's lobe in the frame where the image shows
-none (a lone highlight). Frames: test_rig_pairs' sensor-like planes under the two guides, close to
-the scope (10.9 to 14.8 mm), where the swapped guide's normal lies 14 to 30 deg off."""
+none (a lone highlight, a lobe the frame's edge cuts included). Frames: test_rig_pairs' sensor-like
+planes under the two guides, close to the scope (10.9 to 15.8 mm), where the swapped guide's normal
+lies 14 to 30 deg off."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 from test_rig_pairs import GUIDES_MM, MEDIAN_MAX_DEG, _frame_rows, sensor_plane
 
 from simtest.geometry.angles import unit
@@ -57,6 +60,78 @@ def test_a_lone_highlight_whose_plane_puts_the_other_guides_lobe_where_none_is_k
     misfits = [s for s in specs if ((s.get("light_aware") or {}).get("photometric_fit") or {}).get("status")
                == "guide_misfit"]
     assert all(s["normal_from"] != "photometric_fit" for s in misfits)
+
+
+def test_a_lobe_the_frames_edge_cuts_gets_no_normal_of_the_guide_whose_lobe_is_not_there(tmp_path):
+    # Phong's lobe (the paper's model), 640 x 480: the highlight's lobe is cut by the bottom edge and its red
+    # clips around it; the other guide's specular point lies 5 px left of the frame. Before, the cut
+    # candidate's fit took the other guide's plane (its lobe predicted 0.8 times as high 200 px right of
+    # the BP, where the frame only shades) and became guide 1's ok row, 20.8 deg off
+    img, K, n, truth = sensor_plane(39.0, 15.8, 3, spec=8.24, size=640, rows=480, f=380.0, shininess=397.0,
+                                    azimuth_deg=318.44, phong=True, tissue=(0.846, 0.335, 0.335), median=0.538)
+    inside = [uv for uv in truth if 0 <= uv[0] < img.shape[1] and 0 <= uv[1] < img.shape[0]]
+    assert len(inside) == 1 and inside[0][1] > img.shape[0] - 40  # the lobe the bottom edge cuts
+    specs, rows = _frame_rows(tmp_path, img, K, n, inside)
+    assert rows[0][0] != "undetected", rows
+    assert all(e <= MEDIAN_MAX_DEG for _, e in _any_light_aware(specs, n)), specs
+
+
+def _any_light_aware(specs, n):
+    """(status, error deg) of every estimate whose recommended normal is light-aware."""
+    return [(s["status"], float(np.degrees(np.arccos(min(1.0, abs(np.dot(s["normal"], n)))))))
+            for s in specs if s["normal_from"] not in ("bp_ray", "isophote") and s["normal"] is not None]
+
+
+def _plane_points(K, rig, n, h):
+    pts = []
+    for L in rig.positions:
+        Lm = L - 2 * (n @ L + h) * n
+        X = Lm * (h / -(n @ Lm))
+        pts.append((K @ X)[:2] / X[2])
+    return np.array(pts)
+
+
+@settings(max_examples=25, deadline=None)
+@given(tilt=st.floats(0.0, 35.0), az=st.floats(0.0, 360.0), h=st.floats(8.0, 40.0))
+def test_a_depthless_normal_at_the_pairs_depth_puts_the_partner_where_the_plane_does(tilt, az, h):
+    # a fit that holds the normal and not the depth is judged at the depth the pair gives: the true
+    # normal puts the partner on its point (the pair's depth is interpolated: 0.05 px, as below), and
+    # a normal 5 deg off across the baseline puts it off
+    K = np.array([[300.0, 0, 200.0], [0, 300.0, 150.0], [0, 0, 1]])
+    rig = LightRig(tuple(Light(position_mm=tuple(L)) for L in GUIDES_MM))
+    t, a = np.radians(tilt), np.radians(az)
+    n = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])
+    pts = _plane_points(K, rig, n, h)
+    (starts,) = pair_starts(K, rig.positions, pts[:1], pts)
+    assume(starts and starts[0][:2] == (0, 1))
+    assert pair_misfit_px(K, rig, pts[0], starts[:1], n, None) < 0.05
+    off = unit(n + np.tan(np.radians(5.0)) * np.array([1.0, 0.0, 0.0]))
+    assert pair_misfit_px(K, rig, pts[0], starts[:1], off, None) > 1.0
+
+
+def test_a_partner_the_frames_edge_may_cut_counts_no_gap_out_toward_the_edge():
+    # the partner's BP 3 px inside the right edge. Normals tilted either way about the image's v axis move
+    # guide 1's predicted point out toward the edge or in: out, it may be the cut lobe's specular point
+    # (no gap); in, the gap is the one without an edge; a partner far from the edge counts both
+    K = np.array([[300.0, 0, 200.0], [0, 300.0, 150.0], [0, 0, 1]])
+    rig = LightRig(tuple(Light(position_mm=tuple(L)) for L in GUIDES_MM))
+    n, h = unit(np.array([0.05, 0.0, -1.0])), 12.0
+    pts = _plane_points(K, rig, n, h)
+    (starts,) = pair_starts(K, rig.positions, pts[:1], pts)
+    assert starts and starts[0][:2] == (0, 1)
+    partner = pair_partners(K, rig, pts[0], starts[:1])[0]
+    near, far = (300, int(np.ceil(partner[0])) + 4), (300, 2000)
+    gaps = {}
+    for sign in (1.0, -1.0):
+        m = unit(n + sign * np.tan(np.radians(2.0)) * np.array([1.0, 0.0, 0.0]))
+        moved = _plane_points(K, rig, m, h)[1][0] - partner[0]  # + out toward the right edge
+        free = pair_misfit_px(K, rig, pts[0], starts[:1], m, h)
+        assert free > 2.0 and pair_misfit_px(K, rig, pts[0], starts[:1], m, h, shape=far, margin_px=10.0) == free
+        gaps[np.sign(moved)] = (pair_misfit_px(K, rig, pts[0], starts[:1], m, h, shape=near, margin_px=10.0), free)
+    assert set(gaps) == {1.0, -1.0}
+    out, inward = gaps[1.0], gaps[-1.0]
+    assert out[0] < 0.01 * out[1]  # the v part alone: a tilt about v moves the point along u (the baseline)
+    assert inward[0] == inward[1]
 
 
 def test_pair_partners_is_where_the_pairs_plane_puts_the_other_guides_specular_point():

@@ -232,7 +232,7 @@ def _srgb(s):
 
 def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shininess=800.0,
                  tissue=(0.75, 0.32, 0.25), noise=0.01, median=0.45, texture=None, gamma=None, after_curve=False,
-                 azimuth_deg=90.0, profile=0.0):
+                 azimuth_deg=90.0, profile=0.0, phong=False, rows=None):
     """An 8-bit sRGB frame of a plane under the two guides: Blinn-Phong lobes (exponent
     ``shininess``) and Lambertian shading in the ``tissue`` colour, each guide's light falling
     off with the inverse square, exposed so that the shading's median is ``median`` of full scale
@@ -242,15 +242,18 @@ def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shini
     power-law curve in place of sRGB's. Returns the frame, K, the normal and the true highlights'
     pixels (one per guide). ``after_curve``: the noise added to the curve's output instead;
     ``azimuth_deg``: the tilt's direction (90: across the guides' baseline); ``profile``: each guide's
-    emission falls off as the cosine off its axis (the camera's) to this power."""
+    emission falls off as the cosine off its axis (the camera's) to this power; ``phong``: Phong's
+    lobe (R . V, the paper's model) in place of Blinn's; ``rows``: the frame's height (``size``: its
+    width)."""
     n = _normal(tilt_deg, azimuth_deg)
     h = depth_mm * np.cos(np.radians(tilt_deg))  # the plane n . X = -h, depth_mm on the axis
-    K = np.array([[f, 0, (size - 1) / 2], [0, f, (size - 1) / 2], [0, 0, 1.0]])
-    vv, uu = np.mgrid[0:size, 0:size].astype(float)
+    rows = size if rows is None else rows
+    K = np.array([[f, 0, (size - 1) / 2], [0, f, (rows - 1) / 2], [0, 0, 1.0]])
+    vv, uu = np.mgrid[0:rows, 0:size].astype(float)
     d = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu)], -1)
     X = d * (-h / (d @ n))[..., None]
     V = -X / np.linalg.norm(X, axis=-1, keepdims=True)
-    diffuse, lobes, truth = np.zeros((size, size)), np.zeros((size, size)), []
+    diffuse, lobes, truth = np.zeros((rows, size)), np.zeros((rows, size)), []
     for L in GUIDES_MM:
         Ld = L - X
         r = np.linalg.norm(Ld, axis=-1)
@@ -258,14 +261,15 @@ def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shini
         E = (h / r) ** 2 * np.maximum(Ld @ n, 0.0) * np.maximum(-Ld[..., 2], 0.0) ** profile
         H = Ld + V
         H /= np.linalg.norm(H, axis=-1, keepdims=True)
+        R = 2.0 * (Ld @ n)[..., None] * n - Ld  # the guide's ray mirrored about the normal
         diffuse += E
-        lobes += E * np.maximum(H @ n, 0.0) ** shininess
+        lobes += E * np.maximum(np.einsum("...i,...i", R, V) if phong else H @ n, 0.0) ** shininess
         Lm = L - 2 * (n @ L + h) * n  # the guide's mirror image: its specular point on the plane
         Xs = Lm * (h / -(n @ Lm))
         truth.append((K @ Xs)[:2] / Xs[2])
-    albedo = np.ones((size, size))
+    albedo = np.ones((rows, size))
     if texture is not None:
-        field = cv2.GaussianBlur(np.random.default_rng(seed + 1).normal(0, 1, (size, size)), (0, 0), texture[1])
+        field = cv2.GaussianBlur(np.random.default_rng(seed + 1).normal(0, 1, (rows, size)), (0, 0), texture[1])
         albedo = np.clip(1 + texture[0] * field / field.std(), 0.2, None)
     rgb = (diffuse * albedo)[..., None] * np.asarray(tissue) + spec * lobes[..., None]
     s = np.clip(median / np.median(diffuse * max(tissue)) * rgb, 0, 1)

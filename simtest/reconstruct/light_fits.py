@@ -149,12 +149,17 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             if joint.ok and _fits_the_pair(joint, est.bp_px, camera, rig, pair_starts):
                 pf = _la.plane._note(joint, f"refitted on the ROI that holds its pair with another guide's "
                                             f"highlight ({span.shape[1]} x {span.shape[0]} px)")
-        gap = pair_misfit_px(camera, rig, est.bp_px, pair_starts, pf.normal, pf.distance_mm) if pf.distance_mm else 0
-        if gap > max(roi.shape) / 2.0:  # off the partner's lobe, not a BP's wander off its specular point
+        # the plane (a depth-less fit's normal: at the pair's depth) off the partner's lobe, farther than a
+        # BP's wander off its specular point: the lobe's size, its isophote's (both guides' lobes on one
+        # plane image alike) or the detection's where none closed
+        ell = getattr(est, "ellipse", None)
+        lobe = float(max(ell.semi_axes)) if ell is not None else max(roi.shape) / 2.0
+        gap = (pair_misfit_px(camera, rig, est.bp_px, pair_starts, pf.normal, pf.distance_mm, shape=img.shape,
+                              margin_px=lobe) if pf.has_normal else 0)
+        if gap > lobe:
             pf = pf.without_depth("guide_misfit", f"its plane puts the paired guide's specular point {gap:.3g} px "
                                                   f"from the highlight the rig pairs with this one; {pf.detail}")
-    ok_plane = getattr(est, "ok", False) and pf.ok and pf.distance_mm is not None
-    unseen = _unseen_guide(pf, est, gray, saturation_level, big, camera, rig) if ok_plane else ""
+    unseen = _unseen_guide(pf, est, gray, saturation_level, big, camera, rig) if pf.ok and pf.distance_mm else ""
     if unseen:
         pf = pf.without_depth("guide_misfit", f"{unseen}; {pf.detail}")
     out["photometric_fit"] = pf
@@ -179,8 +184,8 @@ def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
     """The smallest ROI that holds ``big`` and a square of its size about each partner that ``starts`` place
     (:func:`~simtest.reconstruct.rig_pairs.pair_partners`); None where no partner lies in the image."""
     half = max(big.shape) / 2.0
-    boxes = [Roi.around(uv, half, shape) for uv in pair_partners(camera, rig, bp_uv, starts)
-             if np.isfinite(uv).all() and 0 <= uv[0] < shape[1] and 0 <= uv[1] < shape[0]]
+    partners = np.reshape(pair_partners(camera, rig, bp_uv, starts), (-1, 2))
+    boxes = [Roi.around(uv, half, shape) for uv in partners[_in_frame(partners, shape)]]
     if not boxes:
         return None
     return Roi(min(b.row0 for b in (big, *boxes)), max(b.row1 for b in (big, *boxes)),
@@ -189,38 +194,53 @@ def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
 
 def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, big: Roi, camera, rig) -> str:
     """Why the image refutes a plane fit (:data:`~simtest.decisions.GUIDE_SEEN_REL`): another guide's lobe
-    predicted in the frame at least that share as high as the fitted one, where the image within the
-    detected highlight's half-size rises less than that share of its predicted height above the median
-    of a ``big``-sized square's border about it (the BP's height, measured the same way) and reaches no
-    clipped pixel (``clip``: the values' clip level, None without); "" where none."""
+    predicted in the frame at least that share as high as the fit's own (at their specular points), where
+    the image rises less than that share of the own lobe's measured height and reaches no clipped pixel
+    (``clip``: the values' clip level, None without); "" where none. A lobe's rise is measured alike at
+    either point (:func:`_rise`, the tail at the detected highlight's half-size); the own lobe is the
+    guide whose point lies nearest the BP."""
     if len(rig.positions) < 2:
         return ""
-    model = _la.model
     pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
-    h, w = gray.shape[:2]
-    inside = np.isfinite(pts).all(axis=1) & (pts >= 0).all(axis=1) & (pts[:, 0] <= w - 1) & (pts[:, 1] <= h - 1)
+    inside = _in_frame(pts, gray.shape)
     bp = np.asarray(est.bp_px, np.float64)
     own = int(np.nanargmin(np.linalg.norm(np.where(np.isfinite(pts), pts, np.inf) - bp, axis=1)))
-    rays = model._rays(camera, np.vstack([bp[None], pts[inside]]))
-    spec = model.plane_rig_intensity(rays, fit.normal, fit.distance_mm, rig, fit.roughness)
+    if not inside[own]:
+        return ""
+    others = np.flatnonzero(inside & (np.arange(len(pts)) != own))
+    if not others.size:
+        return ""
+    rays = _la.model._rays(camera, pts[np.r_[own, others]])
+    spec = _la.model.plane_rig_intensity(rays, fit.normal, fit.distance_mm, rig, fit.roughness)
     if not spec[0] > 0:
         return ""
-    vals = gray[big.slices]
-    base = float(np.median(border_ring(vals)))
-    height = float(gray[int(round(bp[1])), int(round(bp[0]))]) - base  # (a clipped BP: a lower bound)
-    radius = max(Roi(*(int(v) for v in est.roi)).shape) / 2.0
-    for j, uv, s in zip(np.flatnonzero(inside), pts[inside], spec[1:]):
+    ring = max(Roi(*(int(v) for v in est.roi)).shape) / 2.0
+    height = _rise(gray, pts[own], ring)[0]  # (a clipped top: a lower bound)
+    for j, s in zip(others, spec[1:]):
         rel = float(s / spec[0])
-        if j == own or rel < GUIDE_SEEN_REL:
+        if rel < GUIDE_SEEN_REL:
             continue
-        # measured as at the BP: the peak near the point above the median of a ring of big's size about it
-        ring = gray[Roi.around(uv, max(big.shape) / 2.0, gray.shape).slices]
-        peak = float(gray[Roi.around(uv, radius, gray.shape).slices].max())
-        rise = peak - float(np.median(border_ring(ring)))
+        rise, peak = _rise(gray, pts[j], ring)
         if rise < GUIDE_SEEN_REL * rel * height and not (clip is not None and peak >= clip):
-            return (f"its plane puts guide {j + 1}'s specular point at ({uv[0]:.0f}, {uv[1]:.0f}) px, its lobe "
-                    f"{rel:.2g} times as high as this one's, where the image rises {rise:.3g} of {height:.3g}")
+            return (f"its plane puts guide {j + 1}'s specular point at ({pts[j, 0]:.0f}, {pts[j, 1]:.0f}) px, its "
+                    f"lobe {rel:.2g} times as high as this one's, where the image rises {rise:.3g} of {height:.3g}")
     return ""
+
+
+def _in_frame(pts: np.ndarray, shape) -> np.ndarray:
+    """Which (u, v) px points of ``pts`` (J, 2) lie in an image of ``shape`` (J,) bool."""
+    h, w = shape[:2]
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(pts).all(axis=1) & (pts >= 0).all(axis=1) & (pts[:, 0] < w) & (pts[:, 1] < h)
+
+
+def _rise(gray: np.ndarray, uv, ring: float) -> tuple[float, float]:
+    """A lobe's height at its predicted specular point ``uv`` (u, v) px: the peak within ``PAIR_TOL_PX`` of it
+    (where a right plane puts the lobe's top) above the median of the border of a square of half-side ``ring``
+    px about it (the lobe's tail: on a smooth shading gradient without a lobe, the two differ by the gradient
+    over ``PAIR_TOL_PX``), and the peak itself."""
+    peak = float(gray[Roi.around(uv, PAIR_TOL_PX, gray.shape).slices].max())
+    return peak - float(np.median(border_ring(gray[Roi.around(uv, ring, gray.shape).slices]))), peak
 
 
 def _fits_the_pair(fit: LightAwareEstimate, bp_uv, camera, rig, starts) -> bool:

@@ -347,17 +347,28 @@ def pair_plane(camera, positions_mm, a_uv, b_uv):
     return unit(normals[0] + normals[1]), np.array(depths), (sa[0][0], sa[0][1]), misclosure
 
 
-def pair_misfit_px(camera, rig, bp_uv, starts, normal, distance_mm: float) -> float:
+def pair_misfit_px(camera, rig, bp_uv, starts, normal, distance_mm: float | None, *, shape=None,
+                   margin_px: float = 0.0) -> float:
     """The least image distance (px), over ``starts`` (:func:`pair_starts`' (i, j, d)), between guide j's
     specular point on the plane (``normal``, ``distance_mm``) and the partner; inf without starts or
-    where guide j lies behind the plane.
+    where guide j lies behind the plane. ``distance_mm`` None (a fit that holds the normal, not the
+    depth): each start's plane of ``normal`` through the BP's ray at its depth d. With ``shape`` (rows,
+    cols), a partner within ``margin_px`` of the frame's edge counts no distance out toward that edge:
+    the frame may cut its lobe, whose BP then lies inside of its specular point.
     """
     cam = _model(camera)
-    on_plane = guide_specular_points(cam, rig, normal, distance_mm)
+    ray = unit(np.asarray(cam.pixel_to_ray(np.asarray(bp_uv, np.float64).reshape(1, 2)), np.float64)[0])
+    n = np.asarray(normal, np.float64)
     best = np.inf
-    for (_, j, _), partner in zip(starts, pair_partners(cam, rig, bp_uv, starts)):
-        gap = float(np.linalg.norm(on_plane[j] - partner))
-        best = min(best, gap)  # (NaN: guide j behind the plane, never the least)
+    for (_, j, d), partner in zip(starts, pair_partners(cam, rig, bp_uv, starts)):
+        h = distance_mm if distance_mm is not None else -float(n @ ray) * d  # (n . X = -h at X = d ray)
+        diff = guide_specular_points(cam, rig, n, h)[j] - partner
+        if shape is not None:
+            # inward from a left or top edge +1, from a right or bottom edge -1, elsewhere 0 (u, v)
+            far = np.array(shape[1::-1], np.float64) - 1.0 - partner
+            inward = np.where(partner <= margin_px, 1.0, 0.0) - np.where(far <= margin_px, 1.0, 0.0)
+            diff = np.where(inward * diff < 0, 0.0, diff)  # (a point out toward the edge is a cut lobe's)
+        best = min(best, float(np.linalg.norm(diff)))  # (NaN: guide j behind the plane, never the least)
     return best
 
 
