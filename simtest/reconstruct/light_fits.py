@@ -94,10 +94,10 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         Guides and depth at which the rig puts another guide's highlight on another highlight
         (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a recommendable fit that misplaces it
         is refitted from there too, then on the ROI that holds both highlights (:func:`_pair_roi`), a
-        refit kept where it is ok and places it; a fit that still puts the partner farther than the
-        highlight's half-size off becomes ``guide_misfit`` (one guide's lobe alone hardly tells which
-        guide lit it), as does an ok highlight's fit that puts another guide's lobe in the frame where
-        the image shows none (:func:`_unseen_guide`).
+        refit kept where it is ok and places it; a fit (a depth-less one at the pair's depth) still off
+        the partner by more than the lobe's size becomes ``guide_misfit`` (one guide's lobe alone hardly
+        tells which guide lit it), as does any plane fit that puts another guide's lobe in the frame
+        where the image shows none (:func:`_unseen_guide`).
     colour : bool, optional
         Fit on the ROI's three linear channels, the body colours projected out (None:
         :func:`colour_fit_applies`).
@@ -159,7 +159,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         if gap > lobe:
             pf = pf.without_depth("guide_misfit", f"its plane puts the paired guide's specular point {gap:.3g} px "
                                                   f"from the highlight the rig pairs with this one; {pf.detail}")
-    unseen = _unseen_guide(pf, est, gray, saturation_level, big, camera, rig) if pf.ok and pf.distance_mm else ""
+    unseen = _unseen_guide(pf, est, gray, saturation_level, camera, rig) if pf.ok and pf.distance_mm else ""
     if unseen:
         pf = pf.without_depth("guide_misfit", f"{unseen}; {pf.detail}")
     out["photometric_fit"] = pf
@@ -184,7 +184,7 @@ def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
     """The smallest ROI that holds ``big`` and a square of its size about each partner that ``starts`` place
     (:func:`~simtest.reconstruct.rig_pairs.pair_partners`); None where no partner lies in the image."""
     half = max(big.shape) / 2.0
-    partners = np.reshape(pair_partners(camera, rig, bp_uv, starts), (-1, 2))
+    partners = pair_partners(camera, rig, bp_uv, starts)
     boxes = [Roi.around(uv, half, shape) for uv in partners[_in_frame(partners, shape)]]
     if not boxes:
         return None
@@ -192,7 +192,7 @@ def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
                min(b.col0 for b in (big, *boxes)), max(b.col1 for b in (big, *boxes)))
 
 
-def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, big: Roi, camera, rig) -> str:
+def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, camera, rig) -> str:
     """Why the image refutes a plane fit (:data:`~simtest.decisions.GUIDE_SEEN_REL`): another guide's lobe
     predicted in the frame at least that share as high as the fit's own (at their specular points), where
     the image rises less than that share of the own lobe's measured height and reaches no clipped pixel
