@@ -534,6 +534,13 @@ FUSED_TOPS_STRETCH = decision(
     "Clipped tops this much longer along the rig's curve than wide hold two guides' lobes: one top is 2 r each "
     "way, two tops s apart are s + 2 r long, longer by half from s = r, where they begin to fuse. Two guides "
     "only: three or more make a polygon of tops, as wide as long.", basis="physics", stage=_L)
+FUSED_TOPS_WAIST_PX = decision(
+    "FUSED_TOPS_WAIST_PX", 1.0, "px of the tops' distance transform",
+    "Two guides' clipped tops fused into one show a waist: between their specular points the top is "
+    "narrower than at either (two discs of radius r, s apart: sqrt(r^2 - s^2 / 4) at the middle); one "
+    "lobe's top is convex (a plane's isophotes are ellipses), so its distance to the edge along a segment "
+    "never drops below the ends'. A waist counts where it is this much shallower than the shallower end: "
+    "the transform's step on an edge that noise makes ragged by a pixel.", basis="physics", stage=_L)
 PEAK_SMOOTH_SIGMA_PX = decision(
     "PEAK_SMOOTH_SIGMA_PX", 1.0, "px (Gaussian sigma)",
     "Two guides' unclipped lobes fused into one region are told apart on the luma smoothed over a "

@@ -76,6 +76,23 @@ def test_a_lobe_the_frames_edge_cuts_gets_no_normal_of_the_guide_whose_lobe_is_n
     assert all(e <= MEDIAN_MAX_DEG for _, e in _any_light_aware(specs, n)), specs
 
 
+def test_a_lone_broad_clipped_lobe_whose_fit_cannot_tell_the_guides_gives_no_wrong_normal(tmp_path):
+    # Blinn's lobe, 1080 x 1350, 15.9 mm, tilted 35 deg along the baseline: one broad clipped top (80 px
+    # across), the other guide's specular point 102 px left of the frame, its tail a sliver the edge cuts. The
+    # joint fit holds the normal but not the depth, so it cannot tell which guide lit the top, or whether both
+    # did; it took both, fused (6.5 deg off, sigma 0.21). Before, its rows stood: two ok rows 76 px apart on
+    # the one top (noise below the clip punched holes in it that looked like a waist). Now the sigma counts
+    # the guides' spread and the top shows no waist: the BP ray, no accurate-looking wrong normal
+    img, K, n, truth = sensor_plane(34.8, 15.9, 1, spec=8.7, size=1080, rows=1350, f=700.0, shininess=668.0,
+                                    azimuth_deg=353.5)
+    inside = [uv for uv in truth if 0 <= uv[0] < img.shape[1] and 0 <= uv[1] < img.shape[0]]
+    assert len(inside) == 1 and inside[0][0] < 200  # the lobe, its partner out of the frame
+    specs, _ = _frame_rows(tmp_path, img, K, n, inside)
+    near = [s for s in specs if np.linalg.norm(np.subtract(s["bp_px"], inside[0])) <= 40.0]
+    assert near and all(s["status"] == "ok" for s in near), specs  # the top is found (its BP a plateau's)
+    assert all(e <= MEDIAN_MAX_DEG for _, e in _any_light_aware(specs, n)), specs
+
+
 def _any_light_aware(specs, n):
     """(status, error deg) of every estimate whose recommended normal is light-aware."""
     return [(s["status"], float(np.degrees(np.arccos(min(1.0, abs(np.dot(s["normal"], n)))))))

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,7 +19,9 @@ from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct import read_estimates, write_estimates
 from simtest.reconstruct.io import dumps, estimate_to_dict
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.recommend import DEPTH_REL_SIGMA_CEILING, SIGMA_MARGIN, bp_ray_error_deg, depth_within_ceiling, recommend
+from simtest.reconstruct.lightaware import LightAwareEstimate
+from simtest.reconstruct.recommend import (DEPTH_REL_SIGMA_CEILING, SIGMA_MARGIN, bp_ray_error_deg, depth_within_ceiling,
+                                           guide_spread_deg, recommend, with_guide_spread, without_guide_spread)
 from simtest.reconstruct.light_fits import light_aware_estimates, with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 from simtest.simulate.offset import specular_point
@@ -188,6 +191,52 @@ def test_bp_ray_error_of_guides_either_side_of_the_lens():
     rig = LightRig((Light((-4.0, 0, 0)), Light((4.0, 0, 0))))
     assert bp_ray_error_deg(np.array([0.0, 0.0, 1.0]), 20.0, rig) == pytest.approx(
         0.5 * np.degrees(np.arctan(4.0 / 20.0)), abs=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(tilt=st.floats(0, 45), az=st.floats(0, 360), h=st.floats(8, 60), baseline=st.floats(1.0, 8.0),
+       along=st.floats(0, 180), which=st.integers(0, 1))
+def test_the_guides_spread_is_the_angle_to_the_other_guides_plane(tilt, az, h, baseline, along, which):
+    # A plane lit at its specular point by guide `which` alone has the bisector of the directions to the
+    # camera and to that guide as its normal; the other guide's hypothesis, at the same point, the other
+    # bisector. The spread at the true normal is exactly the angle between the two bisectors, and under
+    # one light (the same guide alone) 0; 1e-6 deg: rounding.
+    N = tilted_normal(tilt, az)
+    a = np.radians(along)
+    half = 0.5 * baseline * np.array([np.cos(a), np.sin(a), 0.0])
+    guides = (Light(tuple(-half)), Light(tuple(half)))
+    assume(all(h + float(np.dot(N, g.position)) >= 1.0 for g in guides))
+    X, depth = specular_point(N, h, guides[which].position)
+    ray = X / np.linalg.norm(X)
+    other = unit(-ray + unit(guides[1 - which].position - X))
+    assert guide_spread_deg(ray, N, depth, LightRig(guides)) == pytest.approx(angle_between_deg(N, other), abs=1e-6)
+    assert guide_spread_deg(ray, N, depth, LightRig((guides[which],))) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_depthless_fit_under_two_guides_counts_their_spread_and_keeps_the_bp_ray():
+    # A fit that cannot pin the depth under two guides cannot tell which lit its lobe: its sigma counts the
+    # spread of the guides' normals (here 5.7 deg: guides 4 mm either side of the lens at 20 mm on the
+    # axis), so rule 3 gives the BP ray, whose error (2.9 deg) it no longer beats; where the image resolves
+    # the guides the spread comes off again, and the fit is kept. Under one light nothing changes.
+    ray, depth = np.array([0.0, 0.0, 1.0]), 20.0
+    rig = LightRig((Light((-4.0, 0, 0)), Light((4.0, 0, 0))))
+    normal = unit(-ray + unit(rig.positions[0] - depth * ray))  # guide 1's plane
+    fit = LightAwareEstimate("photometric_fit", "depth_not_observable", "", normal, normal_sigma_deg=0.3)
+    spread = guide_spread_deg(ray, normal, depth, rig)
+    assert spread == pytest.approx(np.degrees(np.arctan(4.0 / 20.0)), abs=1e-9)
+    counted = with_guide_spread(fit, ray, depth, rig)
+    assert counted.normal_sigma_deg == pytest.approx(np.hypot(0.3, spread)) and counted.guide_spread_deg == spread
+    assert with_guide_spread(counted, ray, depth, rig) is counted  # counted once
+    beside = bp_ray_error_deg(ray, depth, rig)
+    for r, name in [(counted, "bp_ray"), (without_guide_spread(counted, "resolved"), "photometric_fit")]:
+        r = dataclasses.replace(r, bp_ray_error_deg=beside)
+        assert recommend(SimpleNamespace(bp_ray=-ray, light_aware={"photometric_fit": r})).normal_from == name
+    back = without_guide_spread(counted, "resolved")
+    assert back.normal_sigma_deg == pytest.approx(0.3) and back.guide_spread_deg is None
+    assert "resolved" in back.detail and "not resolved" not in back.detail
+    one = LightRig((Light((-4.0, 0, 0)),))
+    assert with_guide_spread(fit, ray, depth, one) is fit
+    assert with_guide_spread(dataclasses.replace(fit, status="ok"), ray, depth, rig).guide_spread_deg is None
 
 
 # --- item: every light-aware normal in ``normals`` ---------------------------------------------------

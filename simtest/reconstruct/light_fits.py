@@ -28,7 +28,7 @@ from simtest.reconstruct.jpeg import jpeg_grid
 from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit, isocurve_fit, photometric_fit,
                                             quadric_fit, refine_isophote_points)
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
-                                           depth_within_ceiling)
+                                           depth_within_ceiling, with_guide_spread)
 from simtest.reconstruct.rig_pairs import guide_specular_points, pair_misfit_px, pair_partners, pair_starts
 
 #: The photometric fit's statuses after which the curved-patch fits run by default (the plane is
@@ -134,6 +134,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         refit = _photometric(img, gray, lobe_roi, est, camera, rig, response, colour, saturation_level, pkw)
         if refit.ok:
             pf = _la.plane._note(refit, f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
+    # the other guide's highlight seen where the fit's plane puts it: the image tells the guides apart
+    paired = bool(pair_starts) and _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)
     if (pair_starts and _recommendable(pf, est, camera, rig, nominal_depth_mm)
             and not _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)):
         # the other guide's highlight, which the ROI's fit did not see: refitted from the pair's depth too
@@ -156,6 +158,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         lobe = float(max(ell.semi_axes)) if ell is not None else max(roi.shape) / 2.0
         gap = (pair_misfit_px(camera, rig, est.bp_px, pair_starts, pf.normal, pf.distance_mm, shape=img.shape,
                               margin_px=lobe) if pf.has_normal else 0)
+        paired = pf.has_normal and gap <= lobe
         if gap > lobe:
             pf = pf.without_depth("guide_misfit", f"its plane puts the paired guide's specular point {gap:.3g} px "
                                                   f"from the highlight the rig pairs with this one; {pf.detail}")
@@ -164,7 +167,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         pf = pf.without_depth("guide_misfit", f"{unseen}; {pf.detail}")
     out["photometric_fit"] = pf
     _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level, cubic=cubic,
-                 nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric)
+                 nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric,
+                 paired=paired)
     return out
 
 
@@ -362,19 +366,24 @@ def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> R
 
 
 def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturation_level, nominal_depth_mm,
-                 quadric_roi_scale, quadric, cubic) -> None:
+                 quadric_roi_scale, quadric, cubic, paired: bool = False) -> None:
     """The curved-patch fits added to ``out`` (the photometric fit's) as ``quadric`` and ``cubic``
-    say, and every fit released: its depth within the ceiling, the BP ray's error beside it set."""
+    say, and every fit released: its depth within the ceiling, the BP ray's error beside it set, a
+    depth-less one's sigma with the guides' spread (:func:`~simtest.reconstruct.recommend.with_guide_spread`)
+    unless it is the photometric fit and ``paired`` (its plane puts another guide's specular point on
+    the highlight the rig pairs with this one)."""
     near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, shape)
     status = out["photometric_fit"].status  # the plane's: which curved fits run by default
     # a misfitting patch's sigma only where the plane misfits, below what rule 4 could take
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
 
-    def released(r: LightAwareEstimate) -> LightAwareEstimate:
-        """``r`` as returned: its depth within the ceiling, the BP ray's error beside it set."""
+    def released(r: LightAwareEstimate, resolved: bool = False) -> LightAwareEstimate:
+        """``r`` as returned: its depth within the ceiling, the BP ray's error beside it set, the guides'
+        spread counted in a depth-less sigma unless ``resolved``."""
         r = depth_within_ceiling(_la.estimate.light_behind_surface(r, ray, rig.positions))
-        return dataclasses.replace(
-            r, bp_ray_error_deg=bp_ray_error_deg(ray, bp_error_depth_mm(r, nominal_depth_mm), rig))
+        at = bp_error_depth_mm(r, nominal_depth_mm)
+        r = r if resolved else with_guide_spread(r, ray, at, rig)
+        return dataclasses.replace(r, bp_ray_error_deg=bp_ray_error_deg(ray, at, rig))
 
     misfit_sigma: bool | float = bool(quadric)
     if status == "plane_misfit" and not quadric:
@@ -392,7 +401,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
         out[name] = _guarded(name, fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
                              clip_level=clip, nominal_depth_mm=nominal_depth_mm, misfit_sigma=sigma)
     for name, r in out.items():
-        out[name] = released(r)
+        out[name] = released(r, paired and name == "photometric_fit")
 
 
 def colour_fit_applies(image, response) -> bool:

@@ -20,7 +20,10 @@ behind each rule are in ``docs/decisions/light-aware-recommendation.md``.
    else ``cone_axis``, else ``bp_ray``.
 3. The fit of least stated sigma (:func:`_stated_sigma`) whose depth is not observable (misfit
    tests passed), where :data:`SIGMA_MARGIN` times it is below the BP ray's expected error
-   (:func:`_bp_ray_error_beside`); ``depth_mm`` None.
+   (:func:`_bp_ray_error_beside`); ``depth_mm`` None. Under two or more guides such a fit cannot
+   tell which guide lit the lobe unless the image shows the other guide's highlight where its normal
+   puts it: its sigma then counts the spread of those hypotheses (:func:`with_guide_spread`), about
+   twice the BP ray's own error, and the BP ray is kept.
 4. A ``plane_misfit`` photometric fit whose normal the quadric confirms (angle g <= the quadric's
    sigma s_q < 90 deg), :data:`SIGMA_MARGIN` times ``g + s_q`` below the BP ray's expected error;
    ``depth_mm`` None (micro-relief reads as curvature while the plane's normal stays near the macro normal).
@@ -40,6 +43,7 @@ estimator recommended (None where it gives none).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -52,7 +56,8 @@ from simtest.reconstruct.lightaware import LightAwareEstimate
 from simtest.reconstruct.registry import names
 
 __all__ = ["DEPTH_REL_SIGMA_CEILING", "ISOCURVE_ISOVALUES", "LIGHT_AWARE", "SIGMA_MARGIN", "Recommendation",
-           "bp_error_depth_mm", "bp_ray_error_deg", "depth_within_ceiling", "recommend"]
+           "bp_error_depth_mm", "bp_ray_error_deg", "depth_within_ceiling", "guide_spread_deg", "recommend",
+           "with_guide_spread", "without_guide_spread"]
 
 #: The light-aware estimators, in the order of preference of the recommendation rule.
 LIGHT_AWARE = names("light_aware", ranked=True)
@@ -152,6 +157,67 @@ def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
         c = float(np.clip(to_cam @ (to_light / nl), -1.0, 1.0))
         half.append(0.5 * math.degrees(math.acos(c)))
     return float(np.average(half, weights=w))
+
+
+#: The detail :func:`with_guide_spread` adds (the spread, degrees).
+_SPREAD_NOTE = "which guide lit the lobe not resolved: normals {:.2g} deg apart counted in the sigma"
+
+
+def guide_spread_deg(ray, normal, depth_mm: float, rig: LightRig) -> float:
+    """How far a normal may be off where one lobe could be any guide's: the largest angle, degrees,
+    between ``normal`` and the bisector of the directions to the camera and to one light of the rig,
+    at the point ``depth_mm`` along ``ray`` (the normal of a plane whose specular point for that light
+    alone is the BP).
+
+    A fit that cannot pin the depth under two or more guides cannot tell which guide lit its lobe, or
+    whether both did (at a larger depth the guides' lobes fuse): those hypotheses' normals differ by
+    about half the angle the guides subtend, twice the BP ray's own error (:func:`bp_ray_error_deg`).
+
+    Parameters
+    ----------
+    ray : array_like of shape (3,)
+        Unit viewing ray of the BP, camera frame.
+    normal : array_like of shape (3,)
+        Unit normal, camera frame, facing the camera.
+    depth_mm : float
+        Distance along ``ray``, mm, > 0.
+    rig : LightRig
+
+    Returns
+    -------
+    float
+        Degrees, in [0, 180].
+    """
+    X = float(depth_mm) * np.asarray(ray, dtype=np.float64)
+    to_cam = -X / np.linalg.norm(X)
+    to_lights = rig.positions - X
+    halves = to_cam + to_lights / np.linalg.norm(to_lights, axis=1, keepdims=True)
+    return max(_angle_deg(normal, h) for h in halves)
+
+
+def with_guide_spread(r: LightAwareEstimate, ray, depth_mm: float, rig: LightRig) -> LightAwareEstimate:
+    """``r`` with :func:`guide_spread_deg` added in quadrature to its ``normal_sigma_deg`` (set as
+    ``guide_spread_deg``) where it gives a normal and its sigma without its depth under two or more
+    lights at different places; else ``r``. Rule 3 (module docstring) then keeps the BP ray.
+    """
+    if (r.status != "depth_not_observable" or not r.has_normal or r.normal_sigma_deg is None
+            or not rig.has_separate_lights or r.guide_spread_deg is not None):
+        return r
+    spread = guide_spread_deg(ray, r.normal, depth_mm, rig)
+    why = _SPREAD_NOTE.format(spread)
+    return dataclasses.replace(r, normal_sigma_deg=float(math.hypot(r.normal_sigma_deg, spread)),
+                               guide_spread_deg=spread, detail=f"{r.detail}; {why}" if r.detail else why)
+
+
+def without_guide_spread(r: LightAwareEstimate, how: str) -> LightAwareEstimate:
+    """``r`` without the spread :func:`with_guide_spread` counted, where the image resolves the guides
+    (``how``: where it does, for the detail)."""
+    if r.guide_spread_deg is None:
+        return r
+    sigma = math.sqrt(max(0.0, r.normal_sigma_deg**2 - r.guide_spread_deg**2))
+    detail = r.detail.replace(_SPREAD_NOTE.format(r.guide_spread_deg), how)
+    return dataclasses.replace(r, normal_sigma_deg=sigma, guide_spread_deg=None, detail=detail)
+
 
 
 def _stated_sigma(r: LightAwareEstimate) -> float | None:

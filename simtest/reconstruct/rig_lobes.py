@@ -7,13 +7,15 @@ or weak, as for a rig twin). The light-aware photometric fit models every lobe o
 ellipse, nor the part of the region the frame cuts.
 
 Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point ``X_s = L' h / (-n . L')`` with
-``L' = L - 2 (n . L + h) n`` (without a distance, the h that centres them on the clipped tops, :func:`_on_the_tops`).
+``L' = L - 2 (n . L + h) n`` (without a distance, the h that centres them on the clipped tops, :func:`_on_the_tops`,
+where the tops narrow between them, :func:`_waisted`: one lobe's top holds any two points at some h).
 When two or more guides' points lie in the candidate's bright region (above :data:`FUSED_LOBE_LEVEL` of the BP's
 height, holding the BP), at least :data:`~simtest.decisions.PAIR_TOL_PX` apart and, if clipped, one within
 ``PAIR_TOL_PX`` of its top (a weaker lobe may not clip), it gives one row per guide whose point is no light-aware
 ok candidate's BP (that highlight has its own row): BP at its specular point, status ``ok``, the joint fit's
-normal. A rejected candidate is fitted for this only where the rig's curve runs in its region. Under two guides a
-``merged`` or ``cluster`` one whose tops do not stretch along that curve gives rows only where the luma dips
+normal (a depth-less one's sigma without the guides' spread: the points apart tell which guide lit which). A
+rejected candidate is fitted for this only where the rig's curve runs in its region. Under two guides a ``merged``
+or ``cluster`` one whose tops do not stretch along that curve gives rows only where the luma dips
 between its fit's two points (:func:`_dips_between`; one elongated blob peaks between them). A ``not_specular``
 one is fitted under two guides only, where it is white (the colour check's white share; its paleness is waived,
 as for a rig twin: two tops at the rig's baseline are what texture does not repeat), its peak is significant
@@ -39,14 +41,17 @@ import dataclasses
 import cv2
 import numpy as np
 
+from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH,
-                               MIN_AREA_PX, PAIR_TOL_PX, PEAK_SMOOTH_GAP_SHARE, PEAK_SMOOTH_SIGMA_PX, PEAK_TOP_SHARE,
-                               SIGNIFICANCE_MIN, TOP_CORE_SHARE, TOPS_PLACE_SIGMA_PX)
+                               FUSED_TOPS_WAIST_PX, MIN_AREA_PX, PAIR_DEPTH_MAX_MM, PAIR_TOL_PX, PEAK_SMOOTH_GAP_SHARE,
+                               PEAK_SMOOTH_SIGMA_PX, PEAK_TOP_SHARE, SIGNIFICANCE_MIN, TOP_CORE_SHARE,
+                               TOPS_PLACE_SIGMA_PX)
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import luma, noise_sigma
 from simtest.reconstruct.light_fits import NOT_FITTED, PLANE_ONLY, _offset_rig, light_aware_estimates
 from simtest.reconstruct.lightaware import LightAwareEstimate
+from simtest.reconstruct.recommend import without_guide_spread
 from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wander_px, guide_specular_points,
                                            other_guide_curves, pair_plane)
 
@@ -134,8 +139,9 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
     return float(np.ptp(d @ t)) >= FUSED_TOPS_STRETCH * float(np.ptp(d @ np.array([-t[1], t[0]])))
 
 
-#: The plane distances h (mm) :func:`_on_the_tops` tries: 1 to 500 mm, 1 % apart.
-_TOPS_H_GRID = np.geomspace(1.0, 500.0, 625)
+#: The plane distances h (mm) :func:`_on_the_tops` tries: 1 mm to the farthest depth a pair may lie at
+#: (``PAIR_DEPTH_MAX_MM``; h is at most the depth), 1 % apart.
+_TOPS_H_GRID = np.geomspace(1.0, PAIR_DEPTH_MAX_MM, int(round(np.log(PAIR_DEPTH_MAX_MM) / np.log(1.01))) + 1)
 
 
 def _tops(gray: np.ndarray, region) -> np.ndarray:
@@ -147,8 +153,10 @@ def _tops(gray: np.ndarray, region) -> np.ndarray:
 
 
 def _tops_depth(gray: np.ndarray, region) -> np.ndarray:
-    """Each pixel's distance (px) to the edge of the region's tops (:func:`_tops`), 0 off them."""
-    return cv2.distanceTransform(np.pad(_tops(gray, region).astype(np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    """Each pixel's distance (px) to the edge of the region's tops (:func:`_tops`), their holes filled (noise
+    below the margin inside a clipped top: a lobe's clipped set has none), 0 off them."""
+    tops = require("scipy.ndimage").binary_fill_holes(_tops(gray, region))  # (scipy: when first needed)
+    return cv2.distanceTransform(np.pad(tops.astype(np.uint8), 1), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
 
 
 def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray | None:
@@ -167,6 +175,22 @@ def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray |
         return None
     best = np.flatnonzero(score == score.max())
     return pts[int(best[len(best) // 2])]
+
+
+def _waisted(depth: np.ndarray, region, pts: np.ndarray) -> bool:
+    """Whether the clipped tops narrow between every two of the points ``pts`` (k, 2) (u, v) px
+    (:data:`~simtest.decisions.FUSED_TOPS_WAIST_PX`; ``depth``: :func:`_tops_depth`): the middle half of
+    each segment dips that much below its shallower end (two guides' tops, not one lobe's)."""
+    _, r0, c0 = region
+    for a, b in zip(*np.triu_indices(len(pts), 1)):
+        t = np.linspace(0.0, 1.0, int(np.ceil(np.linalg.norm(pts[b] - pts[a]))) + 2)
+        uv = (pts[a] + t[:, None] * (pts[b] - pts[a]) - (c0, r0)).astype(np.float32)
+        prof = cv2.remap(depth.astype(np.float32), uv[:, :1], uv[:, 1:], cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)[:, 0]
+        middle = prof[(t >= 0.25) & (t <= 0.75)]
+        if not (middle.size and middle.min() <= min(prof[0], prof[-1]) - FUSED_TOPS_WAIST_PX):
+            return False
+    return True
 
 
 def _significant_dip(dip: float, sub: np.ndarray, s: float) -> bool:
@@ -244,10 +268,12 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
     if fit.distance_mm is not None:
         pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
     elif fit.status == "depth_not_observable" and len(rig.positions) > 1:
-        # the fit holds the normal but not the distance: the h that centres the points on the tops (peaks)
-        pts = (_on_the_tops(_tops_depth(gray, region), region, camera, rig, fit.normal) if est.saturated
+        # the fit holds the normal but not the distance: the h that centres the points on the tops (peaks),
+        # where the tops narrow between them (one lobe's top holds any two points at some h)
+        depth = _tops_depth(gray, region) if est.saturated else None
+        pts = (_on_the_tops(depth, region, camera, rig, fit.normal) if est.saturated
                else _on_the_peaks(gray, region, camera, rig, fit.normal) if len(rig.positions) == 2 else None)
-        if pts is None:
+        if pts is None or (est.saturated and not _waisted(depth, region, pts)):
             return None
     else:
         return None
@@ -275,9 +301,13 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
         if pair is not None and not all(_on_a_top(p, pair[1], [t], region[1:]) for t in pair[2]):
             return None  # two tops the rig pairs, the plane's points not one on each: it misplaced them
     fused = len(k) > 1
+    # the fused lobes' points apart in the image: it tells which guide lit which
+    la = dict(est.light_aware, photometric_fit=without_guide_spread(fit, "the guides' points resolved in the "
+                                                                         "region")) if fused else est.light_aware
     return [_row(est, camera, uv, f"guide {j + 1}'s lobe of {len(k)} fused into one highlight" if fused
                  else f"guide {j + 1}'s lobe, cut by the frame's edge",
-                 f"BP at its specular point, normal from {'their joint' if fused else 'its'} photometric fit")
+                 f"BP at its specular point, normal from {'their joint' if fused else 'its'} photometric fit",
+                 light_aware=la)
             for j, uv in zip(k[free].tolist(), p[free])]
 
 

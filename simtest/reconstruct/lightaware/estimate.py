@@ -90,6 +90,11 @@ class LightAwareEstimate:
     curvature_shift_deg : float or None
         :func:`photometric_fit`: the normal's shift by a curved pattern within its sigma, degrees,
         already added to ``normal_sigma_deg``.
+    guide_spread_deg : float or None
+        A fit without its depth under two or more guides that the image does not tell apart: the largest
+        angle between its normal and the normal of a lobe lit by one guide alone at the BP, degrees,
+        already added to ``normal_sigma_deg`` in quadrature
+        (:func:`~simtest.reconstruct.recommend.guide_spread_deg`).
     """
 
     estimator: str
@@ -114,6 +119,7 @@ class LightAwareEstimate:
     depth_range_mm: tuple[float, float] | None = None
     projection: str | None = None
     curvature_shift_deg: float | None = None
+    guide_spread_deg: float | None = None
 
     @property
     def ok(self) -> bool:
