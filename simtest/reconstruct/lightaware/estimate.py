@@ -90,6 +90,9 @@ class LightAwareEstimate:
     curvature_shift_deg : float or None
         :func:`photometric_fit`: the normal's shift by a curved pattern within its sigma, degrees,
         already added to ``normal_sigma_deg``.
+    fitted_distance_mm : float or None
+        :func:`photometric_fit`: the plane distance h at the solution, mm, kept where the status withdraws
+        ``distance_mm`` (another lobe's fit starts from that plane); None where the fit did not solve.
     guide_spread_deg : float or None
         A fit without its depth under two or more guides that the image does not tell apart: the largest
         angle between its normal and the normal of a lobe lit by one guide alone at the BP, degrees,
@@ -120,6 +123,7 @@ class LightAwareEstimate:
     projection: str | None = None
     curvature_shift_deg: float | None = None
     guide_spread_deg: float | None = None
+    fitted_distance_mm: float | None = None
 
     @property
     def ok(self) -> bool:

@@ -57,6 +57,9 @@ class FitSettings:
         Start normal (e.g. from :func:`isocurve_fit`).
     start_roughness : float, optional
         Start Phong n.
+    start_distance_mm : float, optional
+        Start plane distance h, mm, with ``start_normal`` (another lobe's fit from a fitted plane); None:
+        from the BP and the nominal depth.
     pair_starts : tuple of (int, int, float)
         (i, j, d): light i's start at depth d mm along the BP ray, refined too without a start normal
         (:func:`~simtest.reconstruct.rig_pairs.pair_starts`).
@@ -116,6 +119,7 @@ class FitSettings:
     nominal_depth_mm: float = 20.0
     start_normal: Any = None
     start_roughness: float | None = None
+    start_distance_mm: float | None = None
     pair_starts: tuple = ()
     loss: str = "linear"
     f_scale: float = 0.02
@@ -261,15 +265,16 @@ def _curved(est: LightAwareEstimate) -> bool:
 
 def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
     """One lobe's fit, or with ``lobe="auto"`` Phong's, where it misfits GGX's, where the better of the two
-    leaves a curved pattern Blinn's too (:func:`_choose_lobe`), each from Phong's plane."""
+    leaves a curved pattern Blinn's too (:func:`_choose_lobe`), each from Phong's plane (its normal, roughness
+    and distance, kept where its status withdraws the distance)."""
     fit = (values, origin_uv, bp_uv, camera, rig)
     if s.lobe != "auto":
         return _fit_plane(*fit, s)
     pho = _fit_plane(*fit, replace(s, lobe="phong"))
     if _fits(pho):
         return _note(pho, "phong lobe fits")
-    start = (dict(start_normal=pho.normal, start_roughness=pho.roughness) if pho.has_normal
-             else dict(start_normal=s.start_normal, start_roughness=s.start_roughness))
+    start = (dict(start_normal=pho.normal, start_roughness=pho.roughness, start_distance_mm=pho.fitted_distance_mm)
+             if pho.has_normal else dict(start_normal=s.start_normal, start_roughness=s.start_roughness))
     ggx = _fit_plane(*fit, replace(s, lobe="ggx", **start))
     best = _choose_lobe(pho, ggx)
     if not _curved(best):
@@ -293,6 +298,8 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
     if np.count_nonzero(~m.cens) < 8 + 1 + int(s.diffuse):
         return LightAwareEstimate(name, "too_few_points", f"{np.count_nonzero(~m.cens)} unclipped pixels")
     d_bp, n0, h0 = _start(m.bp, m.camera, rig, s.nominal_depth_mm, s.start_normal)
+    if s.start_normal is not None and s.start_distance_mm is not None and s.start_distance_mm > 0:
+        h0 = float(s.start_distance_mm)  # the plane another lobe's fit found
     solved = solve_plane(m, start_planes(m, rig, d_bp, n0, h0, s), s, floor_level)
     if isinstance(solved, LightAwareEstimate):  # (its projection, for the fallbacks that read it)
         return replace(solved, projection=how)
@@ -311,14 +318,14 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
                   post=verdict.post)
     if colour_detail:
         est = _note(est, colour_detail)
-    est = replace(est, lobe=s.lobe, n_residuals=int(len(m.yn)), projection=how)
+    est = replace(est, lobe=s.lobe, n_residuals=int(len(m.yn)), projection=how, fitted_distance_mm=h_hat)
     if lower is not None and est.status in ("ok", "depth_not_observable"):
         # the shape check on the darkest channel: a curved patch is curved in every channel, and
         # the projection's residual can hide it (a JPEG frame's blocky chroma)
         c, clip_c = _darkest(values, s.clip_level, s.clip_margin)
         chan = _fit_lobes(np.asarray(values, dtype=np.float64)[..., c], origin_uv, bp_uv, m.camera, rig,
                           replace(s, clip_level=clip_c, clip_margin=None, start_normal=est.normal, start_roughness=None,
-                                  n_start_depths=0, projection="auto", two_channels=None))
+                                  start_distance_mm=h_hat, n_start_depths=0, projection="auto", two_channels=None))
         if chan.status == "plane_misfit":
             est = est.without_depth("plane_misfit", f"channel {c}'s fit misfits ({chan.detail}); {est.detail}")
     return est
