@@ -93,6 +93,17 @@ def test_a_lone_broad_clipped_lobe_whose_fit_cannot_tell_the_guides_gives_no_wro
     assert all(e <= MEDIAN_MAX_DEG for _, e in _any_light_aware(specs, n)), specs
 
 
+def test_a_depthless_fit_whose_pair_gives_the_depth_is_refitted_from_the_pair(tmp_path):
+    # Phong's lobe, 400 x 400, 11.1 mm, tilted 32.5 deg: the left highlight's first fit holds the normal but
+    # not the depth, with a sigma too large to recommend, so the refit from the depth its pair with the
+    # other guide's highlight gives did not run and the user got the BP ray (10.5 deg off). The pair is what
+    # gives such a fit its depth: every fit with a normal that does not place the pair is refitted from it
+    img, K, n, truth = sensor_plane(32.51, 11.13, 2, spec=5.5, size=400, f=200.0, shininess=362.3, azimuth_deg=229.54,
+                                    tissue=(0.6647, 0.3393, 0.2575), median=0.393, phong=True)
+    specs, rows = _frame_rows(tmp_path, img, K, n, truth)
+    assert len(rows) == 2 and all(s == "ok" and e is not None and e <= MEDIAN_MAX_DEG for s, e in rows), rows
+
+
 def _any_light_aware(specs, n):
     """(status, error deg) of every estimate whose recommended normal is light-aware."""
     return [(s["status"], float(np.degrees(np.arccos(min(1.0, abs(np.dot(s["normal"], n)))))))

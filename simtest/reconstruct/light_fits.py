@@ -92,8 +92,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         Refit without the pixels whose model lies within a few noise sigmas of an integer image's 0.
     pair_starts : tuple of (int, int, float)
         Guides and depth at which the rig puts another guide's highlight on another highlight
-        (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a recommendable fit that misplaces it
-        is refitted from there too, then on the ROI that holds both highlights (:func:`_pair_roi`), a
+        (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a fit with a normal (ok, or without the
+        depth, which the pair may give) that misplaces it is refitted from there too, then on the ROI that holds both highlights (:func:`_pair_roi`), a
         refit kept where it is ok and places it; a fit (a depth-less one at the pair's depth) still off
         the partner by more than the lobe's size becomes ``guide_misfit`` (one guide's lobe alone hardly
         tells which guide lit it), as does any plane fit that puts another guide's lobe in the frame
@@ -136,7 +136,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             pf = _la.plane._note(refit, f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
     # the other guide's highlight seen where the fit's plane puts it: the image tells the guides apart
     paired = bool(pair_starts) and _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)
-    if (pair_starts and _recommendable(pf, est, camera, rig, nominal_depth_mm)
+    if (pair_starts and (pf.ok or pf.status == "depth_not_observable")
             and not _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)):
         # the other guide's highlight, which the ROI's fit did not see: refitted from the pair's depth too
         alt = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
@@ -170,18 +170,6 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                  nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric,
                  paired=paired)
     return out
-
-
-def _recommendable(fit: LightAwareEstimate, est, camera, rig, nominal_depth_mm: float) -> bool:
-    """Whether the recommendation could take the fit's normal: ok, or without its depth where its
-    stated sigma beats the BP ray's error (rule 3 of :func:`~simtest.reconstruct.recommend.recommend`).
-    """
-    if fit.ok or fit.status != "depth_not_observable" or fit.normal_sigma_deg is None:
-        return fit.ok
-    ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
-    beside = dataclasses.replace(fit, bp_ray_error_deg=bp_ray_error_deg(
-        ray, bp_error_depth_mm(fit, nominal_depth_mm), rig))
-    return SIGMA_MARGIN * fit.normal_sigma_deg < _bp_ray_error_beside(est, beside)
 
 
 def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
