@@ -181,22 +181,3 @@ def test_red_clipped_pixels_valued_from_green_and_blue_take_the_fit_out_of_its_l
     auto = la.photometric_fit(lin, (0, 0), bp, K, RIG, **kw)
     assert auto.status == without.status and auto.detail == without.detail
 
-
-@settings(max_examples=60, deadline=None)
-@given(gap=st.floats(0.0, 10.0), s1=st.floats(0.01, 3.0), s2=st.floats(0.01, 3.0), az=st.floats(0.0, 360.0))
-def test_a_projection_fit_that_the_darkest_channels_fit_contradicts_is_refuted(gap, s1, s2, az):
-    # The darkest channel's shape check also compares normals: one plane seen through the projection and
-    # through one channel of the same pixels. Beyond TWO_CHANNEL_Z root-sum-square sigmas apart they
-    # contradict (a held-out sensor-like Phong frame: the least-fluctuation projection's Blinn fit, RMS 11
-    # times the noise, 4.5 deg off with sigma 0.47, where channel 2's fit was 0.002 deg off); within, the
-    # check says nothing. Either order of the two gives the same verdict (the test is symmetric).
-    n = np.array([0.0, 0.0, -1.0])
-    a = np.radians(az)
-    m = unit(n + np.tan(np.radians(gap)) * np.array([np.cos(a), np.sin(a), 0.0]))
-    est = LightAwareEstimate("photometric_fit", "ok", "", n, normal_sigma_deg=s1)
-    chan = LightAwareEstimate("photometric_fit", "ok", "", m, normal_sigma_deg=s2)
-    room = 2.0 * np.hypot(s1, s2)
-    got = lap._disagree(est, chan)
-    assert (got is not None) == (angle_between_deg(n, m) > room)
-    assert (lap._disagree(chan, est) is None) == (got is None)
-    assert lap._disagree(est, LightAwareEstimate("photometric_fit", "ok", "", m)) is None  # no sigma: no test

@@ -328,21 +328,7 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
                                   start_distance_mm=h_hat, n_start_depths=0, projection="auto", two_channels=None))
         if chan.status == "plane_misfit":
             est = est.without_depth("plane_misfit", f"channel {c}'s fit misfits ({chan.detail}); {est.detail}")
-        elif (gap := _disagree(est, chan)) is not None:
-            # one plane seen through two views of the same pixels: beyond their sigmas, the projection misreads it
-            est = est.without_depth("plane_misfit", f"channel {c}'s fit disagrees ({gap}); {est.detail}")
     return est
-
-
-def _disagree(est: LightAwareEstimate, chan: LightAwareEstimate) -> str | None:
-    """How far apart a projection's fit and the darkest channel's lie where their normals differ by more than
-    ``TWO_CHANNEL_Z`` times the root sum of squares of their sigmas (the two views share pixels, so their
-    difference varies less: a lenient test), else None."""
-    if not (est.has_normal and chan.has_normal) or None in (est.normal_sigma_deg, chan.normal_sigma_deg):
-        return None
-    gap = float(angle_between_deg(est.normal, chan.normal))
-    room = TWO_CHANNEL_Z * math.hypot(est.normal_sigma_deg, chan.normal_sigma_deg)
-    return f"normals {gap:.2g} deg apart, beyond {room:.2g}" if gap > room else None
 
 
 def _darkest(rgb, clip_level, margin=None) -> tuple[int, float | None]:
