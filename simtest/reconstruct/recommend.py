@@ -219,7 +219,6 @@ def without_guide_spread(r: LightAwareEstimate, how: str) -> LightAwareEstimate:
     return dataclasses.replace(r, normal_sigma_deg=sigma, guide_spread_deg=None, detail=detail)
 
 
-
 def _stated_sigma(r: LightAwareEstimate) -> float | None:
     """The ``normal_sigma_deg`` a recommendation from ``r`` states (with per-light normals, the largest)."""
     sig, ls = r.normal_sigma_deg, r.light_normal_sigmas_deg
