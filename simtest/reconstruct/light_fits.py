@@ -137,8 +137,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             pf = _la.plane._note(refit, f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
     # the other guide's highlight seen where the fit's plane puts it: the image tells the guides apart
     paired = bool(pair_starts) and _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)
-    if (pair_starts and (pf.ok or pf.status == "depth_not_observable")
-            and not _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)):
+    if pair_starts and (pf.ok or pf.status == "depth_not_observable") and not paired:
         # the other guide's highlight, which the ROI's fit did not see: refitted from the pair's depth too
         alt = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
                            dict(pkw, pair_starts=tuple(pair_starts)))

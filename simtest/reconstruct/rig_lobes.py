@@ -177,16 +177,19 @@ def _on_the_tops(depth: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     return pts[int(best[len(best) // 2])]
 
 
+def _segment(img: np.ndarray, origin, a, b, border: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, values)``: float32 ``img`` (its [0, 0] at the image's (row, col) ``origin``) bilinear a pixel apart from
+    ``a`` to ``b`` (u, v) px, ``t`` in [0, 1] from ``a``; ``border``: OpenCV's mode off the array (constant 0)."""
+    t = np.linspace(0.0, 1.0, int(np.ceil(np.linalg.norm(np.subtract(b, a)))) + 2)
+    uv = (a + t[:, None] * np.subtract(b, a) - origin[::-1]).astype(np.float32)  # (u, v) in the array
+    return t, cv2.remap(img, uv[:, :1], uv[:, 1:], cv2.INTER_LINEAR, borderMode=border, borderValue=0.0)[:, 0]
+
+
 def _waisted(depth: np.ndarray, region, pts: np.ndarray) -> bool:
-    """Whether the clipped tops narrow between every two of the points ``pts`` (k, 2) (u, v) px
-    (:data:`~simtest.decisions.FUSED_TOPS_WAIST_PX`; ``depth``: :func:`_tops_depth`): the middle half of
-    each segment dips that much below its shallower end (two guides' tops, not one lobe's)."""
-    _, r0, c0 = region
+    """Whether the clipped tops (``depth``: :func:`_tops_depth`) narrow between every two of ``pts`` (k, 2) (u, v) px:
+    each segment's middle half dips :data:`~simtest.decisions.FUSED_TOPS_WAIST_PX` below its shallower end."""
     for a, b in zip(*np.triu_indices(len(pts), 1)):
-        t = np.linspace(0.0, 1.0, int(np.ceil(np.linalg.norm(pts[b] - pts[a]))) + 2)
-        uv = (pts[a] + t[:, None] * (pts[b] - pts[a]) - (c0, r0)).astype(np.float32)
-        prof = cv2.remap(depth.astype(np.float32), uv[:, :1], uv[:, 1:], cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)[:, 0]
+        t, prof = _segment(depth, region[1:], pts[a], pts[b], cv2.BORDER_CONSTANT)  # (0 off the ROI)
         middle = prof[(t >= 0.25) & (t <= 0.75)]
         if not (middle.size and middle.min() <= min(prof[0], prof[-1]) - FUSED_TOPS_WAIST_PX):
             return False
@@ -245,9 +248,7 @@ def _dips_between(gray: np.ndarray, region, pts: np.ndarray) -> bool:
     gap = float(np.linalg.norm(pts[1] - pts[0]))
     s = max(PEAK_SMOOTH_SIGMA_PX, PEAK_SMOOTH_GAP_SHARE * gap)
     sm = cv2.GaussianBlur(sub, (0, 0), s)
-    t = np.linspace(0.0, 1.0, int(np.ceil(gap)) + 2)
-    uv = (pts[0] + t[:, None] * (pts[1] - pts[0]) - (c0, r0)).astype(np.float32)  # (u, v) in the ROI
-    prof = cv2.remap(sm, uv[:, :1], uv[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[:, 0]
+    t, prof = _segment(sm, (r0, c0), pts[0], pts[1], cv2.BORDER_REPLICATE)
     tops = min(float(prof[t * gap <= PAIR_TOL_PX].max()), float(prof[(1.0 - t) * gap <= PAIR_TOL_PX].max()))
     return _significant_dip(tops - float(prof[(t >= 0.25) & (t <= 0.75)].min()), sub, s)
 
