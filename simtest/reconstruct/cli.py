@@ -117,7 +117,7 @@ def reconstruct_command(
         return
     try:
         img = load_image(image)
-        camera_file = _load_camera_file(intrinsics)
+        camera_file = load_camera(intrinsics)
         camera = camera_file.model
         if camera.image_size is not None and tuple(camera.image_size) != image_size_wh(img.shape):
             (W, H), (w, h) = camera.image_size, image_size_wh(img.shape)
@@ -200,16 +200,6 @@ SEQUENCE_FORMATS = {"parquet": ("estimates.parquet", partial(write_frames, fmt="
                     "jsonl": ("estimates.jsonl", partial(write_frames, fmt="jsonl"))}
 
 
-def _load_camera_file(intrinsics):
-    """:func:`load_camera` of ``intrinsics``, a missing or unreadable file an :class:`InputError`."""
-    try:
-        return load_camera(intrinsics)
-    except FileNotFoundError:
-        raise InputError(f"intrinsics file not found: {intrinsics}") from None
-    except OSError as exc:
-        raise InputError(f"cannot read intrinsics {intrinsics}: {exc}") from None
-
-
 def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, workers, cubic=False,
                           output_format="parquet") -> None:
     """Folder or video: estimates.parquet (or .jsonl) in frame order, with a progress bar."""
@@ -217,7 +207,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     left = {"components": 0, "not_examined": 0}
     try:
         source = open_frames(path)
-        camera_file = _load_camera_file(intrinsics)
+        camera_file = load_camera(intrinsics)
         camera, rig = camera_file.model, camera_file.lights
     except (ValueError, OSError) as exc:
         fail(exc, BAD_INPUT)
