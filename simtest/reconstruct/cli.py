@@ -117,13 +117,8 @@ def reconstruct_command(
         return
     try:
         img = load_image(image)
-        try:
-            camera_file = load_camera(intrinsics)
-            camera = camera_file.model
-        except FileNotFoundError:
-            raise InputError(f"intrinsics file not found: {intrinsics}") from None
-        except OSError as exc:
-            raise InputError(f"cannot read intrinsics {intrinsics}: {exc}") from None
+        camera_file = load_camera(intrinsics)
+        camera = camera_file.model
         if camera.image_size is not None and tuple(camera.image_size) != image_size_wh(img.shape):
             (W, H), (w, h) = camera.image_size, image_size_wh(img.shape)
             raise InputError(f"{intrinsics}: key 'image_size' is {W} x {H} px but {image} is {w} x {h} px: these "
@@ -212,13 +207,8 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     left = {"components": 0, "not_examined": 0}
     try:
         source = open_frames(path)
-        try:
-            camera_file = load_camera(intrinsics)
-            camera, rig = camera_file.model, camera_file.lights
-        except FileNotFoundError:
-            raise InputError(f"intrinsics file not found: {intrinsics}") from None
-        except OSError as exc:
-            raise InputError(f"cannot read intrinsics {intrinsics}: {exc}") from None
+        camera_file = load_camera(intrinsics)
+        camera, rig = camera_file.model, camera_file.lights
     except (ValueError, OSError) as exc:
         fail(exc, BAD_INPUT)
     n_workers = workers or os.cpu_count() or 1

@@ -32,6 +32,16 @@ MeshNum = Annotated[Num, BeforeValidator(_python_scalar)]
 MeshInt = Annotated[Int, BeforeValidator(_python_scalar)]
 
 
+def _check_bend(p, radius_mm: float, radius: str) -> None:
+    """MeshError where the centre-line curvature bound |x''| + |y''| (t ~ arc length) times ``radius_mm`` is >= 0.8."""
+    w = 2.0 * math.pi / p.bend_wavelength_mm
+    kappa_max = p.bend_mm * w * w * (1.0 + p.bend_3d * 0.49)
+    if kappa_max * radius_mm >= 0.8:
+        raise MeshError(f"{type(p).__name__}: bend_mm: the centre line bends too sharply for the tube (curvature "
+                        f"up to {kappa_max:.3g} /mm times radius {radius} mm >= 0.8 would fold the wall); "
+                        f"lower bend_mm or raise bend_wavelength_mm")
+
+
 @pydantic_dataclass(frozen=True, config=CONFIG)
 class ColonParams:
     """Parameters of :func:`build_colon` (lengths in mm).
@@ -100,13 +110,7 @@ class ColonParams:
             raise MeshError(f"ColonParams: fold_depth_mm: {self.fold_depth_mm!r} closes the lumen "
                             f"(smallest wall distance {r_min:.3g} mm with radius_mm={self.radius_mm!r}, "
                             f"taenia_indent={self.taenia_indent!r}); keep it below {limit:.3g}")
-        # Largest centre-line curvature: |x''| + |y''| bound, parameter t ~ arc length.
-        w = 2.0 * math.pi / self.bend_wavelength_mm
-        kappa_max = self.bend_mm * w * w * (1.0 + self.bend_3d * 0.49)
-        if kappa_max * self.radius_mm >= 0.8:
-            raise MeshError(f"ColonParams: bend_mm: the centre line bends too sharply for the tube "
-                            f"(curvature up to {kappa_max:.3g} /mm times radius {self.radius_mm!r} mm >= 0.8 "
-                            f"would fold the wall); lower bend_mm or raise bend_wavelength_mm")
+        _check_bend(self, self.radius_mm, repr(self.radius_mm))
 
 
 @pydantic_dataclass(frozen=True, config=CONFIG)
@@ -270,10 +274,5 @@ class HaustralParams:
             raise MeshError(f"HaustralParams: fold_crescent_mm + fold_stagger_mm = "
                             f"{self.fold_crescent_mm + self.fold_stagger_mm!r} must stay below 0.4 fold_spacing_mm "
                             f"({0.4 * self.fold_spacing_mm:.3g}): neighbouring folds would overlap")
-        w = 2.0 * math.pi / self.bend_wavelength_mm
-        kappa_max = self.bend_mm * w * w * (1.0 + self.bend_3d * 0.49)
         r_max = r0 * (1.0 + self.diameter_variation) + self.haustra_bulge_mm
-        if kappa_max * r_max >= 0.8:
-            raise MeshError(f"HaustralParams: bend_mm: the centre line bends too sharply for the tube (curvature "
-                            f"up to {kappa_max:.3g} /mm times radius {r_max:.3g} mm >= 0.8 would fold the wall); "
-                            f"lower bend_mm or raise bend_wavelength_mm")
+        _check_bend(self, r_max, f"{r_max:.3g}")
