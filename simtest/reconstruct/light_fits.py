@@ -93,7 +93,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     pair_starts : tuple of (int, int, float)
         Guides and depth at which the rig puts another guide's highlight on another highlight
         (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a fit with a normal (ok, or without the
-        depth, which the pair may give) that misplaces it is refitted from there too, then on the ROI
+        depth, which the pair may give) that misplaces it, or one that ran off (``_RAN_OFF``: on its ROI
+        alone), is refitted from there too, then on the ROI
         that holds both highlights (:func:`_pair_roi`), a refit kept where it is ok and places it; a fit
         (a depth-less one at the pair's depth) still off the partner by more than the lobe's size
         becomes ``guide_misfit`` (one guide's lobe alone hardly tells which guide lit it), as does any
@@ -137,13 +138,14 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             pf = _la.plane._note(refit, f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
     # the other guide's highlight seen where the fit's plane puts it: the image tells the guides apart
     paired = bool(pair_starts) and _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)
-    if pair_starts and (pf.ok or pf.status == "depth_not_observable") and not paired:
+    ran_off = pf.status in _RAN_OFF
+    if pair_starts and (pf.ok or pf.status == "depth_not_observable" or ran_off) and not paired:
         # the other guide's highlight, which the ROI's fit did not see: refitted from the pair's depth too
         alt = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
                            dict(pkw, pair_starts=tuple(pair_starts)))
         if alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
             pf = _la.plane._note(alt, "refitted from the depth its pair with another guide's highlight gives")
-        elif (span := _pair_roi(big, est.bp_px, camera, rig, pair_starts, img.shape)) is not None:
+        elif not ran_off and (span := _pair_roi(big, est.bp_px, camera, rig, pair_starts, img.shape)) is not None:
             # one guide's lobe alone leaves which guide lit it to the fit: the swapped guide at another
             # depth images nearly the same lobe. The other guide's highlight, in the ROI, tells them apart
             joint = _photometric(img, gray, span, est, camera, rig, response, colour, saturation_level,
@@ -159,7 +161,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         gap = (pair_misfit_px(camera, rig, est.bp_px, pair_starts, pf.normal, pf.distance_mm, shape=img.shape,
                               margin_px=lobe) if pf.has_normal else 0)
         paired = pf.has_normal and gap <= lobe
-        if gap > lobe:
+        if gap > lobe and not ran_off:
             pf = pf.without_depth("guide_misfit", f"its plane puts the paired guide's specular point {gap:.3g} px "
                                                   f"from the highlight the rig pairs with this one; {pf.detail}")
     unseen = _unseen_guide(pf, est, gray, saturation_level, camera, rig) if pf.ok and pf.distance_mm else ""
@@ -170,6 +172,12 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                  nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric,
                  paired=paired)
     return out
+
+
+#: Statuses of a plane fit that ran off (its distance or roughness out of bounds) or ended on a plane
+#: with a light behind it: the pair's depth is the start such a fit lacked. Refitted from it on its own
+#: ROI only: on the ROI that holds both, a glint field's spurious partner gave an ok 13.8 deg off.
+_RAN_OFF = ("not_converged", "light_behind_plane")
 
 
 def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
