@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from test_rig_pairs import GUIDES_MM, MEDIAN_MAX_DEG, _frame_rows, sensor_plane
+from test_rig_pairs import GUIDES_MM, MEDIAN_MAX_DEG, _every_guide_ok, _frame_rows, _jpeg, sensor_plane
 
 from simtest.geometry.angles import unit
 from simtest.geometry.lights import Light, LightRig
@@ -102,6 +102,16 @@ def test_a_depthless_fit_whose_pair_gives_the_depth_is_refitted_from_the_pair(tm
                                     tissue=(0.6647, 0.3393, 0.2575), median=0.393, phong=True)
     specs, rows = _frame_rows(tmp_path, img, K, n, truth)
     assert len(rows) == 2 and all(s == "ok" and e is not None and e <= MEDIAN_MAX_DEG for s, e in rows), rows
+
+
+def test_a_fit_that_ran_off_is_refitted_from_its_pairs_depth(tmp_path):
+    # two small sharp Blinn lobes (exponent 5194) 32 mm away, JPEG 85: each highlight's plane fit ran off
+    # (its distance to 1e-36 or 1e+34 mm: not_converged) and, having no normal, was not refitted from the
+    # depth the pair gives; both got the BP ray. That depth is the start it lacked
+    img, K, n, truth = sensor_plane(24.34, 31.94, 3, spec=1.4, size=640, rows=480, f=380.0, shininess=5194.0,
+                                    azimuth_deg=109.39)
+    specs, rows = _frame_rows(tmp_path, _jpeg(img, 85), K, n, truth)
+    assert len(rows) == 2 and _every_guide_ok(rows), rows
 
 
 def _any_light_aware(specs, n):
