@@ -180,4 +180,3 @@ def test_red_clipped_pixels_valued_from_green_and_blue_take_the_fit_out_of_its_l
     # other (a curved patch's plane can pass with those pixels, _two_channel_choice)
     auto = la.photometric_fit(lin, (0, 0), bp, K, RIG, **kw)
     assert auto.status == without.status and auto.detail == without.detail
-

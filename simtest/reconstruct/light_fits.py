@@ -94,12 +94,11 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         Guides and depth at which the rig puts another guide's highlight on another highlight
         (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a fit with a normal (ok, or without the
         depth, which the pair may give) that misplaces it, or one that ran off (``_RAN_OFF``: on its ROI
-        alone), is refitted from there too, then on the ROI
-        that holds both highlights (:func:`_pair_roi`), a refit kept where it is ok and places it; a fit
-        (a depth-less one at the pair's depth) still off the partner by more than the lobe's size
-        becomes ``guide_misfit`` (one guide's lobe alone hardly tells which guide lit it), as does any
-        plane fit that puts another guide's lobe in the frame where the image shows none
-        (:func:`_unseen_guide`).
+        alone), is refitted from there too, then on the ROI that holds both highlights (:func:`_pair_roi`),
+        a refit kept where it is ok and places it; a fit (a depth-less one at the pair's depth) still off
+        the partner by more than the lobe's size becomes ``guide_misfit`` (one guide's lobe alone hardly
+        tells which guide lit it), as does any plane fit that puts another guide's lobe in the frame
+        where the image shows none (:func:`_unseen_guide`).
     colour : bool, optional
         Fit on the ROI's three linear channels, the body colours projected out (None:
         :func:`colour_fit_applies`).
