@@ -89,3 +89,39 @@ def test_fused_lobes_are_fitted_in_the_workers_bit_for_bit():
     for a, b in zip(one, two):
         np.testing.assert_array_equal(a.bp_px, b.bp_px)
         np.testing.assert_array_equal(a.recommended.normal, b.recommended.normal)
+
+
+def test_a_solve_asked_for_again_is_the_solve_remembered_and_other_pixels_are_solved_anew(monkeypatch):
+    # the fit's stages ask for one solve again (a retry's starts hold the first try's): the solve
+    # remembered is the solve redone, bit for bit, and a ROI one pixel apart is solved anew
+    from collections import OrderedDict
+
+    from simtest.reconstruct.lightaware import photometric_fit, plane_solve
+
+    rig = LightRig(TWO_GUIDES.lights[:1])
+    img, K, _, _, bp = plane_case(20.0, 30.0, rig, size=70)
+    roi = img / img.max() * 230.0 + np.random.default_rng(7).normal(0.0, 2.0, img.shape)
+    solves = []
+    solve = plane_solve._solve_again
+    monkeypatch.setattr(plane_solve, "_solve_again", lambda *a: solves.append(1) or solve(*a))
+    monkeypatch.setattr(plane_solve, "_SOLVES", OrderedDict())
+
+    def fit(values):
+        solves.clear()
+        est = photometric_fit(values, (0, 0), bp, K, rig)
+        return est, len(solves)
+
+    first, n_first = fit(roi)
+    again, n_again = fit(roi)
+    assert first.ok and n_first > 0 and n_again == 0
+    monkeypatch.setattr(plane_solve, "_SOLVES_KEPT", 0)  # nothing remembered: every solve redone
+    plane_solve._SOLVES.clear()
+    redone, n_redone = fit(roi)
+    for est in (again, redone):
+        assert (est.status, est.depth_mm, est.normal_sigma_deg) == (first.status, first.depth_mm, first.normal_sigma_deg)
+        assert np.array_equal(est.normal, first.normal)
+    assert n_redone >= n_first
+    monkeypatch.setattr(plane_solve, "_SOLVES_KEPT", 64)
+    moved = roi.copy()
+    moved[int(bp[1]), int(bp[0]) + 3] += 1.0
+    assert fit(moved)[1] > 0

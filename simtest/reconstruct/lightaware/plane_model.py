@@ -3,6 +3,9 @@
 
 from __future__ import annotations
 
+import hashlib
+import pickle
+
 import numpy as np
 
 from simtest._lazy import require
@@ -96,6 +99,20 @@ class PlaneModel:
         self.proj.clear()
         self.lin = {}  # the background's basis on the active rows (resjac_general)
         self.starts = {}  # start_roughness per start plane
+        self._digest = None  # (digest)
+
+    def digest(self) -> bytes:
+        """A digest of everything the residuals read on the pixels :meth:`use` set (not the caches): equal
+        digests, equal residuals at every point."""
+        if self._digest is None:
+            skip = {"state", "proj", "lin", "starts", "design", "_digest"}
+            arrays: list = []  # (the arrays' buffers hashed in place, not copied into the pickle)
+            h = hashlib.sha1(pickle.dumps({k: v for k, v in self.__dict__.items() if k not in skip}, protocol=5,
+                                          buffer_callback=arrays.append), usedforsecurity=False)
+            for a in arrays:
+                h.update(a.raw())
+            self._digest = h.digest()
+        return self._digest
 
     def basis(self, w):
         """``QT`` (3, M), the background's orthonormal basis (rows), and the projected values."""
