@@ -3,6 +3,7 @@ rendered off-screen, and reconstruct's outputs as a set with its bad-input refus
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 
@@ -150,6 +151,11 @@ def test_3d_view_renders_off_screen_without_a_display(tmp_path, monkeypatch):
     from simtest.reconstruct.io import write_estimates
 
     write_estimates(est_path / "estimates.json", ests, K=K, camera=cam, isovalues=[0.3, 0.6])
+    # and an ok highlight without a BP ray (no disc: the truth panel's discs stay those of the others)
+    doc = json.loads((est_path / "estimates.json").read_text())
+    doc["specularities"].append(copy.deepcopy(doc["specularities"][0]))
+    doc["specularities"][-1]["normals"]["bp_ray"] = None
+    (est_path / "estimates.json").write_text(json.dumps(doc))
     vv, uu = np.mgrid[0:160, 0:160]
     d = cam.pixel_to_ray(np.stack([uu.ravel(), vv.ravel()], 1).astype(float)).reshape(160, 160, 3)
     b = d @ centre

@@ -28,6 +28,16 @@ __all__ = ["estimate_points", "render_view", "surface_from_depth"]
 MAX_SURFACE_GRID = 240
 
 
+def _shown(specs, estimator: str) -> list:
+    """``(spec, normal)`` of each highlight the view draws: ok, with a BP ray and the estimator's normal."""
+    out = []
+    for s in specs:
+        n = s.get("normal") if estimator == "normal" else s["normals"].get(estimator)
+        if s.get("status") == "ok" and s["normals"].get("bp_ray") is not None and n is not None:
+            out.append((s, n))
+    return out
+
+
 def estimate_points(specs, estimator: str) -> tuple[np.ndarray, np.ndarray, bool]:
     """3D points and normals of the reconstructed highlights (module docstring).
 
@@ -47,12 +57,7 @@ def estimate_points(specs, estimator: str) -> tuple[np.ndarray, np.ndarray, bool
         True when the points are in mm.
     """
     rays, normals, depths = [], [], []
-    for s in specs:
-        if s.get("status") != "ok" or s["normals"].get("bp_ray") is None:
-            continue
-        n = s.get("normal") if estimator == "normal" else s["normals"].get(estimator)
-        if n is None:
-            continue
+    for s, n in _shown(specs, estimator):
         rays.append(-np.asarray(s["normals"]["bp_ray"], dtype=np.float64))
         normals.append(np.asarray(n, dtype=np.float64))
         depths.append(s.get("depth_mm"))
@@ -191,12 +196,7 @@ def _render(pv, path, specs, estimator, pts, nrm, metric, truth_points, window_s
         surf = grid.threshold(0.5, scalars="valid", all_scalars=True)
         # the discs at the ground truth's point of each BP pixel
         on = []
-        for s in specs:
-            if s.get("status") != "ok":
-                continue
-            n = s.get("normal") if estimator == "normal" else s["normals"].get(estimator)
-            if n is None:
-                continue
+        for s, _ in _shown(specs, estimator):  # (the rows of estimate_points', so of nrm)
             u, v = (int(round(x)) for x in s["bp_px"])
             on.append(tp[v, u] if 0 <= v < H and 0 <= u < W else np.full(3, np.nan))
         on = np.array(on).reshape(-1, 3)
