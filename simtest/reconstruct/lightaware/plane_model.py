@@ -102,10 +102,12 @@ class PlaneModel:
         self._digest = None  # (digest)
 
     def digest(self) -> bytes:
-        """A digest of everything the residuals read on the pixels :meth:`use` set (not the caches): equal
-        digests, equal residuals at every point."""
+        """A digest of everything the residuals read on the pixels :meth:`use` set: equal digests, equal
+        residuals at every point. Left out: the caches, and the arrays :meth:`use` derives from those
+        hashed (the samples' rays, background columns, values; ``y`` is ``vals`` at ``sel``)."""
         if self._digest is None:
-            skip = {"state", "proj", "lin", "starts", "design", "_digest"}
+            skip = {"state", "proj", "lin", "starts", "design", "_digest", "dT", "rl", "background", "y", "yn",
+                    "clipn"}
             arrays: list = []  # (the arrays' buffers hashed in place, not copied into the pickle)
             h = hashlib.sha1(pickle.dumps({k: v for k, v in self.__dict__.items() if k not in skip}, protocol=5,
                                           buffer_callback=arrays.append), usedforsecurity=False)
