@@ -50,7 +50,7 @@ def phong_frame(W, H, f, guides, normal, depth_mm, phong_n, ks, tissue, median, 
 def reconstruct_frame(folder, img, K, guides) -> list[dict]:
     """``img`` written to ``folder`` with its camera file (sRGB, the ``guides`` (k, 3) mm with the inverse
     square), ``simtest reconstruct`` run on it in one process; its estimates' ``specularities``."""
-    Image.fromarray(img).save(folder / "frame.png")
+    Image.fromarray(img).save(folder / "frame.png", compress_level=1)  # (lossless: zlib level 1 is fastest)
     cam = {"model": "pinhole", "K": K.tolist(), "image_size": [img.shape[1], img.shape[0]],
            "response": {"curve": "srgb", "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255.0},
            "lights": [{"position_mm": L.tolist(), "intensity": 1.0, "falloff": "inverse_square",

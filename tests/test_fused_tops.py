@@ -114,7 +114,7 @@ def _error_deg(row, n) -> float:
 
 def _reconstructed(folder, img, cam) -> list:
     """``simtest reconstruct`` of the frame with its camera file, as test_rig_pairs runs it."""
-    Image.fromarray(img).save(folder / "frame.png")
+    Image.fromarray(img).save(folder / "frame.png", compress_level=1)  # (lossless: zlib level 1 is fastest)
     (folder / "camera.json").write_text(json.dumps(cam))
     return _reconstruct(folder)
 

@@ -282,7 +282,7 @@ def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shini
 
 def _write(folder, img, K, *, lights=True, gamma=None, profile=0.0):
     folder.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(img).save(folder / "frame.png")
+    Image.fromarray(img).save(folder / "frame.png", compress_level=1)  # (lossless: zlib level 1 is fastest)
     curve = {"curve": "srgb"} if gamma is None else {"curve": "gamma", "gamma": gamma}
     cam = {"model": "pinhole", "K": K.tolist(), "image_size": [img.shape[1], img.shape[0]],
            "response": {**curve, "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255.0}}
