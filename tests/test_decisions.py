@@ -50,6 +50,7 @@ NOT_DECISIONS = {
     "lightaware.model.BLINN_PER_PHONG": "a geometric identity: the mirror angle is twice the half vector's",
     "lightaware.patch._VALLEY_STEP": _SOLVER,
     "lightaware.plane.RETRY_START_DEPTHS": _SOLVER,
+    "lightaware.plane_solve._SOLVES_KEPT": "a cache's size: a solve remembered is the solve redone, bit for bit",
     "lightaware.plane_solve.REFINE_MAX_PIXELS": "a cost bound: a larger ROI's refinement takes a sub-grid, "
                                                 "its fit judged by the decisions after",
     **{f"lightaware.plane_model.{n}": _SOLVER for n in ("_NOT_FINITE_RESIDUAL",
