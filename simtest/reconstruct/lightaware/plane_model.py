@@ -99,7 +99,7 @@ class PlaneModel:
         self.proj.clear()
         self.lin = {}  # the background's basis on the active rows (resjac_general)
         self.starts = {}  # start_roughness per start plane
-        self._digest = None  # (digest)
+        self._digest = None  # (:meth:`digest`, computed when first asked for)
 
     def digest(self) -> bytes:
         """A digest of everything the residuals read on the pixels :meth:`use` set: equal digests, equal

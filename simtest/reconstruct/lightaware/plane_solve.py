@@ -64,8 +64,7 @@ def _not_finite(where: str, nfev: int) -> LightAwareEstimate:
 
 
 #: The solves :func:`_again` keeps (least recently used out): the stages ask for one solve again (a
-#: retry's starts hold the first try's, a projection's fallback a fit already made), 14 to 17 % of
-#: the model's evaluations on a rendered colonoscope frame and a sensor-like pair.
+#: retry's starts hold the first try's, a projection's fallback a fit already made).
 _SOLVES: OrderedDict = OrderedDict()
 
 #: How many solves :data:`_SOLVES` keeps: each holds a residual vector, 2 MB at the most pixels a fit
