@@ -650,6 +650,24 @@ RUN_OFF_FACTOR = decision(
     "planes changed, and the light-aware step of the colon renders took half the time.",
     basis="tuned", stage=_L, chosen_on=("bundled-renders", "sensor-like-generated"),
     n="11 renders of 7 bundled scenes; 22 plane frames (ggx_plane seeds 40-41, sensor_plane 100-109)")
+VALLEY_SCAN_AFTER = decision(
+    "VALLEY_SCAN_AFTER", 50, "Levenberg-Marquardt evaluations",
+    "A plane fit not converged after this many evaluations crawls along the BP's valley: with large "
+    "residuals (the other guide's lobe misplaced) Gauss-Newton's curvature along the depth is far "
+    "above the cost's and LM's steps stay small. There each light's valley is scanned about LM's "
+    "depth (VALLEY_SCAN_SPAN) and LM resumed from the least cost. On the colonoscope render 202 of "
+    "216 solves converge within 50; on a sensor-like plane 8 of 105 solves ended at the cap of 200, "
+    "not converged (half its fit time), none with the scan.",
+    basis="tuned", stage=_L, chosen_on=("bundled-renders", "sensor-like-generated"),
+    n="the colonoscope render at seed 0 (216 solves); test_pair_swap's two poses (sensor_plane "
+      "seeds 482 and 423: 53 and 105 solves)")
+VALLEY_SCAN_SPAN = decision(
+    "VALLEY_SCAN_SPAN", (4.0, 9), "factor of the depth either side; depths scanned per light",
+    "The depths a crawling plane fit scans along each light's valley: a factor 4 either side of "
+    "LM's, 9 depths a factor sqrt(2) apart. The guides' lobes lie about epsilon / d apart in the "
+    "image, so neighbouring depths move them by 30 % of their separation; the span (16-fold) stays "
+    "within DISTANCE_FACTOR_MAX of the start.",
+    basis="convention", stage=_L)
 CLIP_MARGIN = decision(
     "CLIP_MARGIN", 2.0, "noise standard deviations below the clip level",
     "Pixels within 2 sigma below the clip are censored (the curved patches leave them out): nearer, "

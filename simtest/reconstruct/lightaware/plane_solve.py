@@ -7,10 +7,10 @@ from collections import OrderedDict
 
 import numpy as np
 
-from simtest.decisions import FLOOR_MARGIN as _FLOOR_MARGIN, RUN_OFF_FACTOR
+from simtest.decisions import FLOOR_MARGIN as _FLOOR_MARGIN, RUN_OFF_FACTOR, VALLEY_SCAN_AFTER, VALLEY_SCAN_SPAN
 from simtest.geometry.conics import plane_basis
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
-from simtest.reconstruct.lightaware.model import _mean_light
+from simtest.reconstruct.lightaware.model import _mean_light, _normal_derivs, _rays
 from simtest.reconstruct.lightaware.plane_model import _NOT_FINITE_RESIDUAL, PlaneModel, start_roughness
 from simtest.reconstruct.lightaware.solve import _bisector_plane, _correlated, _implausible, _light_start, _solve
 
@@ -88,8 +88,72 @@ def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
     return x_.copy(), nfev, conv, msg, r.copy()
 
 
+class ValleyCoords:
+    """Coordinates ``q = (alpha, beta, log d, log roughness)`` of a plane in which the BP's valley is a line.
+
+    The BP fixes the specular point of its light on the BP ray. The planes that keep it there, whose
+    normal is the bisector ``b(d)`` of the directions from the ray's point at depth ``d`` to the camera
+    and to the light, form a curve along which the cost hardly changes; in the coordinates
+    ``p = (a, b, log h, log roughness)`` of :class:`~simtest.reconstruct.lightaware.plane_model.PlaneModel`
+    the normal and the distance move together along it. Here the normal is ``unit(b(d) + alpha e1 +
+    beta e2)`` and the plane holds the ray's point at depth ``d``: on the curve alpha = beta = 0.
+
+    Parameters
+    ----------
+    d_bp : ndarray of shape (3,)
+        The BP's unit viewing ray, camera frame.
+    light_mm : ndarray of shape (3,)
+        The BP's light, camera frame, mm; not at the camera centre.
+    n0, e1, e2 : ndarray of shape (3,)
+        The normal about which ``p`` is written and its plane's basis.
+    """
+
+    def __init__(self, d_bp, light_mm, n0, e1, e2):
+        self.r, self.L, self.B = d_bp, light_mm, np.array([n0, e1, e2])
+
+    @classmethod
+    def of_rig(cls, m: PlaneModel, n0, e1, e2) -> list:
+        """The coordinates of each light of the rig of a fit on ``m`` not at the camera centre."""
+        d_bp = _rays(m.camera, m.bp[None])[0]
+        return [cls(d_bp, L, n0, e1, e2) for L in m.rig_arr[0] if np.abs(L).max() > 0]
+
+    def bisector(self, d):
+        """The unit bisector of the directions from the ray's point at depth ``d`` (mm) to the camera
+        and to the light."""
+        v = self.L - d * self.r
+        s = v / np.sqrt(v @ v) - self.r
+        return s / np.sqrt(s @ s)
+
+    def to_p(self, q):
+        """The plane's ``p = (a, b, log h, log roughness)`` at ``q`` (NaN where it turns away from the ray)."""
+        d = float(np.exp(q[2]))
+        b0, b1, b2 = self.B @ self.bisector(d)
+        p = np.array([(b1 + q[0]) / b0, (b2 + q[1]) / b0, 0.0, q[3]])
+        n = _normal_derivs(p, *self.B)[0]
+        with np.errstate(invalid="ignore"):
+            p[2] = q[2] + np.log(-(n @ self.r))
+        return p
+
+    def to_q(self, p):
+        """The inverse of :meth:`to_p`; None where the plane faces away from the ray."""
+        n = _normal_derivs(p, *self.B)[0]
+        nr = -(n @ self.r)
+        if not nr > 0:
+            return None
+        d = float(np.exp(p[2])) / nr
+        b0, b1, b2 = self.B @ self.bisector(d)
+        return np.array([p[0] * b0 - b1, p[1] * b0 - b2, np.log(d), p[3]])
+
+
+def _cost(m: PlaneModel, p, n0, e1, e2) -> float:
+    """The sum of squared residuals at ``p`` (about ``n0``); inf where ``p`` or the model is not finite."""
+    r = m.resjac_at(p, n0, e1, e2, grad=False)[0] if np.isfinite(p).all() else None
+    return float(r @ r) if r is not None and np.isfinite(r).all() else np.inf
+
+
 def _solve_again(m: PlaneModel, x, n0, e1, e2, h0, s):
-    """:func:`_again` without its memory."""
+    """:func:`_again` without its memory: LM, and where it crawls, LM again from the least cost along
+    the BP's valley (:class:`ValleyCoords`, :data:`~simtest.decisions.VALLEY_SCAN_AFTER`)."""
     free = np.ones(len(x), bool)
     free[2] = np.abs(m.rig_arr[0]).max() > 1e-9 * h0  # all lights at V: no dependence on h
 
@@ -98,8 +162,23 @@ def _solve_again(m: PlaneModel, x, n0, e1, e2, h0, s):
         with np.errstate(over="ignore"):
             return _implausible(float(np.exp(p[2])), h0, m.phong_n(p[3]), s.diffuse, widen=RUN_OFF_FACTOR)
 
-    return _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, s.max_nfev, free,
-                  lazy_jac=True, weighted=True, newton=True, stop=stop)
+    after, (span, n_scan) = VALLEY_SCAN_AFTER, VALLEY_SCAN_SPAN
+    lm = dict(lazy_jac=True, weighted=True, newton=True, stop=stop)
+    if s.max_nfev <= after + n_scan:
+        return _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, s.max_nfev, free, **lm)
+    first = x, nfev, conv, msg, r = _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, after, free, **lm)
+    if conv or nfev < after or not _finite(m, r):  # (converged, or ran off)
+        return first
+    # a crawl along the BP's valley: each light's valley scanned about LM's depth, LM resumed from the least cost
+    steps = np.linspace(-np.log(span), np.log(span), n_scan)
+    scan = [x]
+    for c in ValleyCoords.of_rig(m, n0, e1, e2):
+        q = c.to_q(x)
+        with np.errstate(all="ignore"):
+            scan += [] if q is None else [c.to_p(np.array([0.0, 0.0, q[2] + k, q[3]])) for k in steps]
+    x, nfev = min(scan, key=lambda p_: _cost(m, p_, n0, e1, e2)), nfev + len(scan) - 1
+    x, nfev2, conv, msg, r = _solve(m.resjac_at, x, (n0, e1, e2), s.loss, s.f_scale, s.max_nfev - nfev, free, **lm)
+    return x, nfev + nfev2, conv, msg, r
 
 
 def solve_plane(m: PlaneModel, cands, s, floor_level):
