@@ -72,6 +72,12 @@ _SOLVES: OrderedDict = OrderedDict()
 _SOLVES_KEPT = 64
 
 
+def forget_solves() -> None:
+    """Empty the solves' memory (:data:`_SOLVES`): a benchmark's repeat of one frame then times the
+    solves a user's first run makes, not remembered ones."""
+    _SOLVES.clear()
+
+
 def _again(m: PlaneModel, x, n0, e1, e2, h0, s):
     """``x`` refined on the pixels :meth:`PlaneModel.use` set last: ``(x, nfev, conv, msg, r)``, the same
     solve's result again where its model and inputs are the same (:data:`_SOLVES`)."""
