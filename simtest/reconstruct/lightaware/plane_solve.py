@@ -26,9 +26,7 @@ def _screened(m: PlaneModel, starts, given):
     """The start (n, h) of least cost before any refinement (at its start roughness)."""
     def cost(nh):
         e1_, e2_ = plane_basis(nh[0])
-        p0_ = np.array([0.0, 0.0, np.log(nh[1]), np.log(start_roughness(m, *nh, given))])
-        r_ = m.resjac_at(p0_, nh[0], e1_, e2_, grad=False)[0]
-        return float(r_ @ r_) if np.isfinite(r_).all() else np.inf
+        return _cost(m, np.array([0.0, 0.0, np.log(nh[1]), np.log(start_roughness(m, *nh, given))]), nh[0], e1_, e2_)
     return min(starts, key=cost)
 
 
@@ -123,17 +121,10 @@ class ValleyCoords:
         d_bp = _rays(m.camera, m.bp[None])[0]
         return [cls(d_bp, L, n0, e1, e2) for L in m.rig_arr[0] if np.abs(L).max() > 0]
 
-    def bisector(self, d):
-        """The unit bisector of the directions from the ray's point at depth ``d`` (mm) to the camera
-        and to the light."""
-        v = self.L - d * self.r
-        s = v / np.sqrt(v @ v) - self.r
-        return s / np.sqrt(s @ s)
-
     def to_p(self, q):
         """The plane's ``p = (a, b, log h, log roughness)`` at ``q`` (NaN where it turns away from the ray)."""
         d = float(np.exp(q[2]))
-        b0, b1, b2 = self.B @ self.bisector(d)
+        b0, b1, b2 = self.B @ _bisector_plane(self.r, self.L, d)[0]
         p = np.array([(b1 + q[0]) / b0, (b2 + q[1]) / b0, 0.0, q[3]])
         n = _normal_derivs(p, *self.B)[0]
         with np.errstate(invalid="ignore"):
@@ -147,7 +138,7 @@ class ValleyCoords:
         if not nr > 0:
             return None
         d = float(np.exp(p[2])) / nr
-        b0, b1, b2 = self.B @ self.bisector(d)
+        b0, b1, b2 = self.B @ _bisector_plane(self.r, self.L, d)[0]
         return np.array([p[0] * b0 - b1, p[1] * b0 - b2, np.log(d), p[3]])
 
 
