@@ -19,6 +19,8 @@ Modules
 - :mod:`benchmarks.opencv_replay`: the row under a frame's, its OpenCV calls replayed alone.
 - :mod:`benchmarks.render`, :mod:`benchmarks.harness`, :mod:`benchmarks.dataset`: the renderer,
   the harness's sweeps and dataset generation.
+- :mod:`benchmarks.sensor_like`: not a speed: issue 63's held-out accuracy on sensor-like frames of
+  an independent generator, through the command line.
 
 A new section is a function ``bench_<name>(repeat: int) -> list[simtest.bench.BenchResult]`` (or
 a dict, see :mod:`simtest.bench`) in a module here and one line in :data:`SECTIONS`; its module is
@@ -33,4 +35,5 @@ SECTIONS: dict[str, str] = {
     "render": "benchmarks.render:bench_render",
     "harness": "benchmarks.harness:bench_harness",
     "dataset": "benchmarks.dataset:bench_dataset",
+    "sensor_like": "benchmarks.sensor_like:bench_sensor_like",
 }

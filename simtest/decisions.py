@@ -82,6 +82,11 @@ DATA: dict[str, DataSet] = {
         "tuning", "8-bit sRGB frames of planes under the two guides made by the tests' generators "
         "(tests/test_rig_pairs.py sensor_plane, tests/test_fused_tops.py ggx_plane) at seeds no "
         "held-out count names"),
+    "sensor-like-independent": DataSet(
+        "held_out", "8-bit sRGB frames of planes under two guides made by benchmarks/sensor_like.py (a "
+        "generator sharing no code with the renderer or the tests' generators: Phong, Blinn-Phong and GGX "
+        "lobes, random K, baselines, tissue colours, exposure and noise) at its ROOT_SEED; judged "
+        "only (`simtest bench --only sensor_like`)"),
     "suites-held-out-seeds": DataSet(
         "held_out", "every bundled suite run at a root seed outside TUNING_ROOT_SEEDS: the same "
         "scenes and settings, new noise, texture and relief draws"),

@@ -1,0 +1,223 @@
+"""``simtest bench --only sensor_like``: issue 63's sensor-like must-hold, held out, through the command line.
+
+Flat mucosa under two light guides, as a sensor records it, made here by a generator that shares no code
+with simtest's renderer nor with the tests' generators (whose frames are tuning data, ``simtest.decisions``):
+each frame draws its camera, rig, plane, lobe, tissue colour, exposure and noise from
+:data:`RANGES`, is written with its camera file (pinhole K, the two guides, the sRGB response) and is
+reconstructed by ``simtest reconstruct FRAME -k camera.json`` in a fresh process, as a user runs it. Each
+true highlight (one per guide: the guide's mirror image in the plane, projected) is the nearest estimate's
+within the harness's ``MATCH_PX`` and half the distance to the other guide's. The frames are held out:
+drawn at :data:`ROOT_SEED`, which no decision was chosen on (``simtest.decisions.DATA``'s
+``sensor-like-independent``).
+
+Figures (from :func:`bench_sensor_like`): the share of true highlights without an ``ok`` light-aware
+recommended normal (target at most 0.10: issue 63 asks at least 90 % with one) and the median error of
+those normals (target 0.5 deg), with the statuses met and the seconds a frame takes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from simtest.bench import BenchResult
+from simtest.harness.metrics import MATCH_PX
+
+__all__ = ["bench_sensor_like", "sensor_frame", "score"]
+
+#: Root seed of the held-out frames (``simtest.decisions.DATA["sensor-like-independent"]``).
+ROOT_SEED = 20261201
+
+#: What a frame draws, uniformly (``log``: uniformly in the logarithm). Lengths in mm, angles in deg.
+#: Guides 3 to 5 mm either side of the lens (colonoscopes' light guides) on a baseline at any angle;
+#: mucosa 8 to 50 mm away, tilted up to 60 deg; lobes from rough to wet (Phong and Blinn-Phong
+#: exponents 50 to 2000, GGX alpha 0.04 to 0.3); specular gain 0.5 to 8 times the diffuse's (weak
+#: unclipped lobes to clipped plateaus); exposure putting the diffuse median at 0.2 to 0.6 of full
+#: scale (linear); Gaussian noise 0.5 to 2 % of full scale before the curve.
+RANGES = {
+    "focal_px": (250.0, 450.0), "guide_mm": (3.0, 5.0), "depth_mm": (8.0, 50.0), "tilt_deg": (5.0, 60.0),
+    "exponent": (50.0, 2000.0, "log"), "ggx_alpha": (0.04, 0.3, "log"), "spec_gain": (0.5, 8.0, "log"),
+    "median": (0.2, 0.6), "noise": (0.005, 0.02),
+    "tissue_rgb": ((0.6, 0.85), (0.25, 0.45), (0.18, 0.35)),
+}
+
+#: Frame sizes drawn (width, height), px.
+SIZES = ((640, 480), (720, 576), (512, 512))
+
+
+#: A true highlight nearer the frame's edge than this (px) is redrawn: its isophotes would be cut.
+EDGE_PX = 25.0
+
+#: Frames a ``repeat`` of the section makes (``repeat`` 1 to 5).
+FRAMES_PER_REPEAT = 20
+
+
+def _draw(rng, key):
+    lo, hi, *how = RANGES[key]
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) if how else float(rng.uniform(lo, hi))
+
+
+def _srgb(x):
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
+
+
+def sensor_frame(rng: np.random.Generator) -> tuple[np.ndarray, dict, np.ndarray, np.ndarray, dict]:
+    """One sensor-like frame of a plane under two guides.
+
+    Radiance per pixel: per guide j at ``L_j`` (camera frame, mm), irradiance ``E_j = (d / r_j)^2
+    max(0, n . l_j)`` (inverse square, d the plane's depth on the axis), times the tissue colour
+    (Lambert) plus ``k_s E_j lobe_j`` in white, with the lobe Phong's ``(r_j . v)^e``, Blinn-Phong's
+    ``(n . h_j)^e`` or GGX's normal distribution scaled to peak 1; exposed, noised, clipped to [0, 1],
+    through the sRGB curve and rounded to 8 bits.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    frame : ndarray of shape (H, W, 3), uint8
+    camera : dict
+        The camera file's content: pinhole ``K``, ``image_size``, the two guides, the sRGB response.
+    normal : ndarray of shape (3,)
+        The plane's unit normal, camera frame, facing the camera.
+    truth : ndarray of shape (2, 2)
+        Per guide, the specular point's pixel (u, v): its mirror image in the plane, projected.
+    meta : dict
+        What was drawn.
+    """
+    W, H = SIZES[int(rng.integers(len(SIZES)))]
+    f = _draw(rng, "focal_px")
+    K = np.array([[f, 0, (W - 1) / 2 + rng.uniform(-8, 8)], [0, f, (H - 1) / 2 + rng.uniform(-8, 8)], [0, 0, 1.0]])
+    b, th = _draw(rng, "guide_mm"), float(rng.uniform(0, np.pi))
+    guides = np.array([[-b * np.cos(th), -b * np.sin(th), 0.0], [b * np.cos(th), b * np.sin(th), 0.0]])
+    tilt, az, depth = np.radians(_draw(rng, "tilt_deg")), rng.uniform(0, 2 * np.pi), _draw(rng, "depth_mm")
+    n = np.array([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), -np.cos(tilt)])
+    h = -depth * n[2]  # the plane n . X + h = 0 through (0, 0, depth)
+    vv, uu = np.mgrid[0:H, 0:W].astype(float)
+    ray = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu)], -1)
+    X = ray * (-h / (ray @ n))[..., None]
+    V = -X / np.linalg.norm(X, axis=-1, keepdims=True)
+    lobe = str(rng.choice(["phong", "blinn", "ggx"]))
+    e, alpha = _draw(rng, "exponent"), _draw(rng, "ggx_alpha")
+    diffuse, spec, truth = np.zeros((H, W)), np.zeros((H, W)), []
+    for L in guides:
+        Ld = L - X
+        r = np.linalg.norm(Ld, axis=-1)
+        Ld /= r[..., None]
+        E = (depth / r) ** 2 * np.maximum(Ld @ n, 0.0)
+        Hv = Ld + V
+        nh = np.maximum((Hv / np.linalg.norm(Hv, axis=-1, keepdims=True)) @ n, 0.0)
+        if lobe == "phong":
+            R = 2.0 * (Ld @ n)[..., None] * n - Ld
+            shape = np.maximum(np.einsum("...i,...i", R, V), 0.0) ** e
+        elif lobe == "blinn":
+            shape = nh ** e
+        else:
+            a2 = alpha * alpha
+            shape = (a2 / ((nh * nh) * (a2 - 1.0) + 1.0)) ** 2  # GGX's D over its peak
+        diffuse += E
+        spec += E * shape
+        M = L - 2.0 * (n @ L + h) * n  # the guide's mirror image; the specular point on its ray
+        Xs = M * (h / -(n @ M))
+        truth.append((K @ Xs)[:2] / Xs[2])
+    tissue = np.array([rng.uniform(*rgb) for rgb in RANGES["tissue_rgb"]])
+    ks, med, noise = _draw(rng, "spec_gain"), _draw(rng, "median"), _draw(rng, "noise")
+    lin = med / np.median(diffuse * tissue.max()) * (diffuse[..., None] * tissue + ks * spec[..., None])
+    lin = np.clip(lin + rng.normal(0.0, noise, lin.shape), 0.0, 1.0)
+    frame = np.rint(_srgb(lin) * 255.0).astype(np.uint8)
+    camera = {"model": "pinhole", "K": K.tolist(), "image_size": [W, H],
+              "lights": [{"position_mm": L.tolist(), "intensity": 1.0, "falloff": "inverse_square",
+                          "profile_exponent": 0.0} for L in guides],
+              "response": {"curve": "srgb", "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255.0}}
+    meta = {"lobe": lobe, "exponent": e, "ggx_alpha": alpha, "tilt_deg": float(np.degrees(tilt)), "depth_mm": depth,
+            "guide_mm": b, "spec_gain": ks, "median": med, "noise": noise, "size": [W, H]}
+    return frame, camera, n, np.array(truth), meta
+
+
+def score(specs: list[dict], truth: np.ndarray, normal: np.ndarray) -> list[tuple[str, float | None]]:
+    """Per true highlight ``(status, error)``: the nearest estimate's status within the harness's ``MATCH_PX``
+    and half the distance to the other guide's (``not_detected`` beyond) and its recommended normal's error (deg), None
+    unless the recommendation is ``ok`` and light-aware (not the BP ray's nor the isophotes')."""
+    bps = np.array([s["bp_px"] for s in specs], dtype=float).reshape(-1, 2)
+    radius = min(MATCH_PX, 0.5 * float(np.linalg.norm(truth[0] - truth[1])))
+    rows = []
+    for uv in truth:
+        d = np.linalg.norm(bps - uv, axis=1) if len(bps) else np.array([np.inf])
+        k = int(np.argmin(d))
+        if d[k] > radius:
+            rows.append(("not_detected", None))
+            continue
+        s = specs[k]
+        aware = s["status"] == "ok" and s["normal"] is not None and s["normal_from"] not in ("bp_ray", "isophote")
+        err = float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(s["normal"], normal))))))) if aware else None
+        rows.append((s["status"], err))
+    return rows
+
+
+def _frame(args) -> tuple[list, float]:
+    i, folder = args
+    while True:  # (redrawn until both highlights lie inside the frame)
+        rng = np.random.default_rng([ROOT_SEED, i])
+        frame, camera, normal, truth, meta = sensor_frame(rng)
+        W, H = camera["image_size"]
+        if np.all((truth >= EDGE_PX) & (truth <= np.array([W, H]) - 1 - EDGE_PX)):
+            break
+        i += 1_000_000
+    sub = folder / f"frame{args[0]:03d}"
+    sub.mkdir()
+    cv2.imwrite(str(sub / "frame.png"), frame[..., ::-1])
+    (sub / "camera.json").write_text(json.dumps(camera))
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "simtest.cli", "reconstruct", str(sub / "frame.png"), "-k",
+                           str(sub / "camera.json"), "-o", str(sub / "out"), "--no-overlay", "-j", "1"],
+                          capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"frame {args[0]}: simtest reconstruct failed: {proc.stderr.strip()[-500:]}")
+    specs = json.loads((sub / "out" / "estimates.json").read_text())["specularities"]
+    return score(specs, truth, normal), wall
+
+
+def bench_sensor_like(repeat: int = 3) -> list[BenchResult]:
+    """Reconstruct ``FRAMES_PER_REPEAT * repeat`` held-out sensor-like frames through the command line.
+
+    Parameters
+    ----------
+    repeat : int
+        Scales the number of frames (clipped to 1 .. 5): 20 to 100 frames, two at a time.
+
+    Returns
+    -------
+    list of simtest.bench.BenchResult
+        The share of true highlights without an ``ok`` light-aware normal (target 0.10), the median error of
+        those normals (deg, target 0.5), and the wall seconds of a frame's command (no target).
+    """
+    frames = FRAMES_PER_REPEAT * min(5, max(1, int(repeat)))
+    with tempfile.TemporaryDirectory(prefix="simtest-sensor-like-") as tmp, ThreadPoolExecutor(2) as pool:
+        done = list(pool.map(_frame, [(i, Path(tmp)) for i in range(frames)]))
+    rows = [r for frame_rows, _ in done for r in frame_rows]
+    errs = np.array([e for _, e in rows if e is not None])
+    statuses = ", ".join(f"{k} {v}" for k, v in Counter(s for s, e in rows if e is None).most_common())
+    n = len(rows)
+    within = f"{np.mean(errs <= 1.0):.3f} of them within 1 deg" if len(errs) else "none"
+    return [
+        BenchResult("sensor_like", f"share of {n} true highlights without an ok light-aware normal "
+                    f"({frames} held-out frames)", 1.0 - len(errs) / n, "", 0.10, None,
+                    f"without one: {statuses or 'none'}"),
+        BenchResult("sensor_like", "median error of the light-aware normals", float(np.median(errs)) if len(errs)
+                    else float("nan"), "deg", 0.5, None, f"n {len(errs)}; {within}; max {errs.max():.3g} deg"
+                    if len(errs) else ""),
+        BenchResult("sensor_like", "simtest reconstruct per frame, wall (two at a time)",
+                    float(np.median([w for _, w in done])), "s", None, float(min(w for _, w in done))),
+    ]
