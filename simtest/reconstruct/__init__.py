@@ -14,6 +14,27 @@ on real endoscopic images. Entry points:
 
 The function is ``simtest.reconstruct.reconstruct`` (``from simtest.reconstruct import
 reconstruct``); ``simtest.reconstruct`` is this package, not a callable.
+
+A frame's path through the modules, in order (:func:`reconstruct` in ``pipeline``; ``frame_pass`` is one
+pass of the middle stages):
+
+1. ``frame_prep``: the frame as the stages see it (camera model, rays, luma, noise, smoothing).
+2. ``detect`` (pixels: ``detect_pixels``; the candidates' table: ``candidates``): bright components, each
+   candidate's BP and ROI, or why it is not fitted (``failures.REASONS``).
+3. ``frame_verify`` (early): the BP checks that need no isophote (``not_specular`` candidates are not contoured).
+4. ``isophotes`` (one ROI: ``isophote``; contours of a whole frame: ``marching``), then ``fit`` (the ellipse)
+   and ``assemble`` (``cone_fit``, ``estimators``): per isophote its point conic C, cone axis and circle
+   pose; per highlight a :class:`SpecularityEstimate`.
+5. ``frame_verify`` and ``verify`` (pixels: ``evidence_pixels``): the specularity checks, the status and the
+   confidence; ``broad_lobes`` runs 2 to 5 again on a wider background square where a lobe needs it.
+6. With a camera file's light rig (the CLI, ``rig_centroid.light_aware_with_rig``): ``light_fits`` runs the
+   light-aware estimators of ``lightaware`` on the ok highlights; ``rig_lobes`` gives fused guides' lobes
+   a row each, ``rig_pairs`` says where the other guides' highlights lie, ``rig_centroid`` fits fused lobes
+   by their centroid; ``recommend`` picks each highlight's normal.
+7. ``result`` (``Reconstruction``, what :func:`reconstruct` returns, and its tables), written by ``io`` (``estimates.json``),
+   ``table`` (Parquet), ``overlay`` and ``view3d``; ``frames`` runs folders and videos, ``cli`` the command.
+
+Every decision number the stages apply is in :mod:`simtest.decisions`; every estimator's name in ``registry``.
 """
 
 from __future__ import annotations
