@@ -54,7 +54,6 @@ RANGES = {
 #: Frame sizes drawn (width, height), px.
 SIZES = ((640, 480), (720, 576), (512, 512))
 
-
 #: A true highlight nearer the frame's edge than this (px) is redrawn: its isophotes would be cut.
 EDGE_PX = 25.0
 
