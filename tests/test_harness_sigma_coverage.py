@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from simtest.harness.claims import evaluate_claims
-from simtest.harness.metrics import case_metrics
+from simtest.harness.metrics import case_metrics, summarise_records
 from simtest.harness.protocols import _sigma_coverage
 from simtest.tolerances import TOL
 
@@ -81,6 +81,58 @@ def test_a_few_large_cases_outweigh_many_small_ones():
     v = {v["id"]: v for v in evaluate_claims({"cases": [_case(i, r) for i, r in enumerate(rows)],
                                               "sweeps": []})}["sigma_coverage"]
     assert v["holds"] is False and v["measured"].startswith("share within twice the sigma 0.655 over 29 ")
+
+
+def _sigma_rec(err, sigma, status="ok"):
+    return {"truth": True, "detected": True, "status": status, "normal_from": "photometric_fit",
+            "error_deg": err, "sigma_deg": sigma, "depth_err_pct": math.nan}
+
+
+_E2E_REC = st.tuples(st.floats(0.0, 10.0), st.one_of(st.none(), st.floats(1e-3, 5.0)),
+                     st.sampled_from(["ok", "cluster"]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.lists(_E2E_REC, min_size=1, max_size=8), min_size=1, max_size=5), st.floats(0.0, 1.0))
+def test_the_verdict_is_the_users_coverage_and_the_status_free_one_stands_beside(cases_recs, given_share):
+    # each case: what `simtest reconstruct` recommended (error, stated sigma or none, status), and a
+    # status-free share that must not decide once the user's records state a sigma
+    cases = []
+    for i, recs in enumerate(cases_recs):
+        c = _case(i, [1.0 if given_share >= 0.5 else 0.0] * 4)
+        c["metrics"]["end_to_end"] = summarise_records([_sigma_rec(*r) for r in recs])
+        cases.append(c)
+    stated = [(e, s) for recs in cases_recs for e, s, _ in recs if s is not None]
+    v = {v["id"]: v for v in evaluate_claims({"cases": cases, "sweeps": []})}["sigma_coverage"]
+    if not stated:  # no user's sigma: the status-free share decides, as before end-to-end records
+        assert v["holds"] is (given_share >= 0.5) and v["scope"].startswith("rendered cases, given the highlight")
+        return
+    share = sum(e <= 2.0 * s for e, s in stated) / len(stated)
+    assert v["holds"] is (share >= TOL.claim_sigma_coverage)
+    assert v["measured"].startswith("end to end (simtest reconstruct's recommended normal, any status): "
+                                    f"share within twice the sigma {share:.3g} over {len(stated)} highlights")
+    assert "Given the highlight (the harness's detection, any status) (not part of the verdict)" in v["measured"]
+
+
+def test_a_record_without_a_sigma_or_a_score_is_no_sample_of_the_users_coverage():
+    e = summarise_records([_sigma_rec(0.1, 0.1), _sigma_rec(3.0, 1.0, "cluster"), _sigma_rec(5.0, None),
+                           _sigma_rec(math.nan, 1.0), {k: v for k, v in _sigma_rec(9.0, 0.1).items()
+                                                       if k != "sigma_deg"}])  # a record from before
+    assert e["n_sigma"] == 2 and e["within_2sigma"] == 0.5
+    assert summarise_records([_sigma_rec(1.0, None)])["within_2sigma"] is None
+    # the depths' coverage counts the records whose recommended depth states a sigma (1 or 0; NaN: none)
+    e = summarise_records([dict(_sigma_rec(0.1, 0.1), depth_within_2sigma=v) for v in (1.0, 0.0, 1.0, math.nan)])
+    assert e["n_depth_sigma"] == 3 and e["depth_within_2sigma"] == 2 / 3
+    assert summarise_records([_sigma_rec(0.1, 0.1)])["depth_within_2sigma"] is None
+
+
+def test_the_users_depth_coverage_stands_beside_the_verdict():
+    c = _case(0, [1.0])
+    c["metrics"]["end_to_end"] = summarise_records([dict(_sigma_rec(0.1, 0.1), depth_within_2sigma=v)
+                                                    for v in (1.0, 0.0, 0.0, 1.0)])
+    v = {v["id"]: v for v in evaluate_claims({"cases": [c], "sweeps": []})}["sigma_coverage"]
+    assert v["holds"] is True  # four normals within twice their sigma; the depths do not decide
+    assert "Depths end to end (not part of the verdict): share within twice the sigma 0.5 over 4" in v["measured"]
 
 
 def _curved_case(i, rows):

@@ -37,8 +37,11 @@ def frame_records(result, depth_errors) -> list[dict]:
     """The end-to-end records of a render, one per in-frame highlight.
 
     Each holds ``truth``, ``detected``, ``distance_px``, ``status`` (``not_detected`` where none
-    matched), ``normal_from``, ``error_deg`` and ``depth_err_pct`` (``depth_errors(estimate,
-    highlight, rig)["recommended_depth_err_pct"]``); the first also ``frame_false_ok``, the ok
+    matched), ``normal_from``, ``error_deg``, ``sigma_deg`` (the recommended normal's stated 1-sigma,
+    deg; None where it states none), ``depth_err_pct`` and ``depth_within_2sigma``
+    (``depth_errors(estimate, highlight, rig)``'s ``recommended_depth_err_pct`` and
+    ``recommended_depth_within_2sigma``: 1 or 0 where the recommended depth states a sigma, else
+    NaN); the first also ``frame_false_ok``, the ok
     detections farther than ``MATCH_PX`` from every true highlight and on no specular lobe, and
     ``frame_lobe_ok_deg``, the errors of those on a lobe with no exact BP (:func:`_lobe_errors`). A
     frame without an in-frame highlight gives one record with ``truth`` False.
@@ -57,10 +60,14 @@ def frame_records(result, depth_errors) -> list[dict]:
         e = found[best][0] if best is not None and dist <= MATCH_PX else None
         err = score(e, h.normal, ("recommended",), light=int(getattr(h, "light", 0)))["recommended"][0]
         rec = getattr(e, "recommended", None)
+        depth = depth_errors(e, h, cam.lights)
         out.append({"truth": True, "detected": e is not None, "distance_px": dist,
                     "status": "not_detected" if e is None else str(e.status),
                     "normal_from": None if rec is None else str(rec.normal_from), "error_deg": err,
-                    "depth_err_pct": depth_errors(e, h, cam.lights)["recommended_depth_err_pct"]})
+                    "sigma_deg": None if getattr(rec, "normal_sigma_deg", None) is None
+                    else float(rec.normal_sigma_deg),
+                    "depth_err_pct": depth["recommended_depth_err_pct"],
+                    "depth_within_2sigma": depth.get("recommended_depth_within_2sigma", math.nan)})
     out = out or [{"truth": False}]
     out[0]["frame_false_ok"] = float(len(far) - len(lobes))
     out[0]["frame_lobe_ok_deg"] = lobes

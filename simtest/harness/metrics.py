@@ -124,8 +124,12 @@ def summarise_records(records) -> dict | None:
         status), ``n_ok`` and ``median_ok_deg``, ``median_ok_depth_err_pct``,
         ``false_ok_per_frame`` (ok detections on no listed highlight and no specular lobe),
         ``lobe_ok_per_frame`` and ``median_lobe_ok_deg`` (those on a lobe peak with no exact BP,
-        scored against the surface normal there), ``statuses`` and ``normal_from`` (counts),
-        ``match_px``.
+        scored against the surface normal there), ``n_sigma`` and ``within_2sigma`` (the true
+        highlights whose recommended normal states a sigma and is scored, whatever its status, and
+        the share of them that err by at most twice it; None without one; records without
+        ``sigma_deg`` state none), ``n_depth_sigma`` and ``depth_within_2sigma`` (the same for the
+        recommended depth, from the records' ``depth_within_2sigma``), ``statuses`` and
+        ``normal_from`` (counts), ``match_px``.
     """
     records = list(records)
     if not records:
@@ -138,6 +142,10 @@ def summarise_records(records) -> dict | None:
     dep = np.array([r["depth_err_pct"] for r in t], dtype=np.float64)[ok] if t else np.zeros(0)
     dep = dep[np.isfinite(dep)]
     okerr = err[ok & np.isfinite(err)] if t else err
+    sig = np.array([np.nan if r.get("sigma_deg") is None else r["sigma_deg"] for r in t], dtype=np.float64)
+    stated = np.isfinite(sig) & np.isfinite(err) if t else np.zeros(0, bool)
+    dcov = np.array([r.get("depth_within_2sigma", np.nan) for r in t], dtype=np.float64)
+    dcov = dcov[np.isfinite(dcov)]
     n = len(t)
     share = (lambda m: float(np.mean(m)) if n else None)  # noqa: E731
     return {"n": n, "detected": share([r["detected"] for r in t]), "ok": share(ok),
@@ -147,6 +155,9 @@ def summarise_records(records) -> dict | None:
             "false_ok_per_frame": float(np.mean(fo)) if fo.size else None,
             "lobe_ok_per_frame": lobe.size / fo.size if fo.size else None,
             "median_lobe_ok_deg": float(np.median(lobe[np.isfinite(lobe)])) if np.isfinite(lobe).any() else None,
+            "n_sigma": int(stated.sum()),
+            "within_2sigma": float(np.mean(err[stated] <= 2.0 * sig[stated])) if stated.any() else None,
+            "n_depth_sigma": int(dcov.size), "depth_within_2sigma": float(np.mean(dcov)) if dcov.size else None,
             "statuses": dict(sorted(Counter(r["status"] for r in t).items())),
             "normal_from": dict(sorted(Counter(r["normal_from"] or "none" for r in t).items())),
             "match_px": MATCH_PX}
