@@ -72,7 +72,7 @@ def time_ms_cpu(fn: Callable[[], object], repeat: int) -> tuple[float, float, fl
 def wrapped(targets: list[tuple[object, str]], wrap: Callable[[str, Callable], Callable]) -> Iterator[None]:
     """Replace each function ``getattr(namespace, name)`` of ``targets`` by ``wrap(name, fn)`` for
     the block, and put the originals back on leaving it, also when it raises (the mechanism of
-    :func:`benchmarks.opencv_replay.opencv_calls` and :func:`benchmarks.kernels.kernel_times`; not thread-safe)."""
+    :func:`benchmarks.opencv_replay.opencv_calls`; not thread-safe)."""
     originals = [(ns, name, getattr(ns, name)) for ns, name in targets]
     for ns, name, fn in originals:
         setattr(ns, name, wrap(name, fn))
@@ -86,7 +86,7 @@ def wrapped(targets: list[tuple[object, str]], wrap: Callable[[str, Callable], C
 def summary(totals: list[float], per: dict[str, float]) -> tuple[float, float, dict[str, float]]:
     """Median and minimum of runs' totals, ms, and each function's summed time over the runs as
     its mean per run, largest first (the results of
-    :func:`benchmarks.opencv_replay.replay_opencv_ms` and :func:`benchmarks.kernels.kernel_ms`)."""
+    :func:`benchmarks.opencv_replay.replay_opencv_ms`)."""
     n = len(totals)
     per = {name: t / n for name, t in sorted(per.items(), key=lambda kv: -kv[1])}
     return statistics.median(totals), min(totals), per

@@ -5,7 +5,7 @@ function, class or conditional, and every ``importlib.import_module`` / ``simtes
 call with a literal name. Run-time checks of ``sys.modules`` cannot see an import made inside a
 function that has not run yet; this one can.
 
-Rules (the README's Architecture section says why):
+Rules (the README's "Where things live" section says why):
 
 - ``simtest.geometry`` and ``simtest.specular`` import nothing of simtest beyond each other and the
   base modules (``_io``, ``_checks``, ``_config``, ``_lazy``, ``_records``, ``_version``, ``tolerances``,

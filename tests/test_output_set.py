@@ -4,7 +4,7 @@ whatever step, its ``--out`` folder holds the whole previous set or the whole ne
 
 Two levels: the command, with a failure injected at each rename of the swap (the old writer renamed
 file by file, so a failure between its two renames mixed the sets); and
-:func:`~simtest.reconstruct.io.replace_output_folder` killed for real (``os._exit`` in a forked
+:func:`~simtest._io.replace_output_folder` killed for real (``os._exit`` in a forked
 child, so no clean-up runs) at each step, including between the two renames of the fallback swap
 used where the file system has no atomic exchange.
 """

@@ -29,10 +29,8 @@ from simtest.geometry.response import ResponseError
 from simtest.harness.report.figures import figure_png
 from simtest._exit import BAD_INPUT, fail
 from simtest._outdir import check_out_folder, write_out_folder
-from simtest.reconstruct.cli import check_workers
+from simtest.reconstruct.cli import check_workers, reconstruct_single
 from simtest.reconstruct.io import estimate_to_dict
-from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
 
 #: ``simtest reconstruct``'s defaults for whole frames, which ``evaluate`` uses too
@@ -92,11 +90,8 @@ def c3vd_command(
             task = progress.add_task("reconstructing frames", total=len(frames))
             for fr in frames:
                 img, truth = load_frame(fr, camera)
-                ests = reconstruct(img, camera, settings=settings)
-                # the camera file's light rig and sensor response, as reconstruct uses them
-                try:
-                    ests = with_light_aware(img, ests, camera, camera_file.lights, response=camera_file.response,
-                                            workers=workers)
+                try:  # as `simtest reconstruct FRAME -k CAMERA_FILE` (its rig and response) does
+                    ests = reconstruct_single(img, camera_file, settings, workers=workers)[0]
                 except ResponseError as exc:  # a frame the response could not have written: name both
                     raise ResponseError(f"{intrinsics}: {exc} (frame {fr.index})") from None
                 n_cand += len(ests)
@@ -218,7 +213,8 @@ def _detection_markdown(results: dict) -> str:
          "Targets are the labelled isolated specular highlights; a candidate or an ok estimate is a "
          "true positive when it is the first to fall on a target (a rendered target that gathers k "
          "lights' highlights: one of the first k; see simtest.evaluate.detection). Renders are "
-         "reconstructed with their camera file's light rig, as simtest reconstruct runs them.", ""]
+         "detected and checked under their light rig, without the light-aware fits (which can turn a rig "
+         "partner's row ok in simtest reconstruct).", ""]
     head = ["| {} | targets | candidates | precision | recall | ok | ok precision | ok recall | ok F1 | "
             "not examined |", "|---|---|---|---|---|---|---|---|---|---|"]
 

@@ -135,7 +135,7 @@ def metrics_of(results: dict) -> dict:
     -------
     dict of str to object
         Metric name -> value as found (float, None where an estimator never succeeded, or
-        whatever the document holds: :func:`invalid_values` finds the bad ones).
+        whatever the document holds: :func:`_bad` names the bad ones).
     """
     out = {}
     for fam, f in results.get("families", {}).items():

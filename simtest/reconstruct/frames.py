@@ -421,8 +421,8 @@ def write_frames(path, records, *, fmt="parquet", on_frame=None) -> tuple[Path, 
     records : iterable of dict
         From :func:`reconstruct_frames` (:class:`FrameRecord` s too).
     fmt : {"parquet", "jsonl"}
-        Parquet: the rows of :func:`~simtest.reconstruct.io.table_schema`, in frame order, each
-        frame's other keys in the file's metadata (:func:`~simtest.reconstruct.io.table_metadata`).
+        Parquet: the rows of :func:`~simtest.reconstruct.table.table_schema`, in frame order, each
+        frame's other keys in the file's metadata (:func:`~simtest.reconstruct.table.table_metadata`).
         JSON Lines: each record's compact JSON.
     on_frame : callable, optional
         Called with each record after it is written (progress).

@@ -258,7 +258,7 @@ def _encloses(uv: np.ndarray, bp_uv: np.ndarray) -> bool:
 
 
 def _box_contours(box, level, origin_uv, bp_uv):
-    """:func:`_batch_contours`' answer for one box by ``find_contours`` (degenerate cases too)."""
+    """:func:`~simtest.reconstruct.marching.batch_contours`' answer for one box by ``find_contours`` (degenerate cases too)."""
     closed, pieces = [], []
     for rc in find_contours(box, level):
         if len(rc) >= 3 and rc[0, 0] == rc[-1, 0] and rc[0, 1] == rc[-1, 1]:
