@@ -137,7 +137,13 @@ def compare_variants(scene: str = "colonoscope", variants: Sequence[str] = ("llv
                 return {"error": f"{v}: {error}"}
             with np.load(path) as z:
                 out.append({k: z[k] for k in z.files})
-    a, b = out
+    return {"variants": list(variants), **variant_differences(*out)}
+
+
+def variant_differences(a: dict, b: dict) -> dict:
+    """:func:`compare_variants`' figures of render ``b`` against render ``a`` (each a dict of arrays:
+    ``mask``, ``linear``, ``normals``, ``depth``, ``bp_px``, ``sensor``): ``px``, the pixels both hit,
+    and the differences over them (module docstring of :func:`compare_variants`' return)."""
     both = a["mask"] & b["mask"]
     ref = float(np.percentile(a["linear"][both], 99)) if both.any() else 1.0
     dlin = np.abs(a["linear"][both].astype(np.float64) - b["linear"][both]) / ref
@@ -148,7 +154,7 @@ def compare_variants(scene: str = "colonoscope", variants: Sequence[str] = ("llv
     def p999(x):
         return float(np.percentile(x, 99.9)) if x.size else 0.0
 
-    return {"variants": list(variants), "px": int(both.size),
+    return {"px": int(np.count_nonzero(both)),
             "hit_differs_px": int(np.count_nonzero(a["mask"] != b["mask"])),
             "linear_mean_rel": float(dlin.mean()) if dlin.size else 0.0,
             "linear_p999_rel": p999(dlin), "linear_max_rel": float(dlin.max()) if dlin.size else 0.0,

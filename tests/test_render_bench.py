@@ -75,8 +75,36 @@ def test_compare_variants_of_one_variant_finds_no_difference_and_names_a_missing
     assert out["hit_differs_px"] == 0 and out["linear_max_rel"] == 0.0
     assert out["normal_p999_deg"] == 0.0 and out["depth_p999_rel"] == 0.0
     assert out["sensor_equal_frac"] == 1.0 and out["bp_max_px"] == 0.0
-    assert out["highlights"] == [1, 1] and out["px"] > 0
+    assert out["highlights"] == [1, 1] and out["px"] > 0  # (its figures: test_variant_differences_...)
     # the missing variant first: its process fails before any render (the loop names whichever
     # variant fails; with it second, a render of the first came before, 1/3 of the test's CPU)
     bad = compare_variants("plane_58deg", ("no_such_variant", "llvm_ad_rgb"))
     assert set(bad) == {"error"} and bad["error"].startswith("no_such_variant: ") and "Traceback" not in bad["error"]
+
+
+def test_variant_differences_measure_a_known_perturbation():
+    # a render against itself with one hit pixel lost, its linear image 1 % brighter, its normals
+    # turned 0.1 deg about x, its depth 2 % deeper, its BP 0.5 px off and a quarter of its sensor
+    # values changed: each figure is that change, over the pixels both hit
+    from benchmarks.render import variant_differences
+
+    rng = np.random.default_rng(0)
+    mask = np.ones((8, 8), bool)
+    mask[0, :3] = False
+    t = np.radians(0.1)
+    normals = np.tile([0.0, 0.0, -1.0], (8, 8, 1))
+    a = {"mask": mask, "linear": rng.uniform(0.5, 1.0, (8, 8)), "normals": normals, "depth": np.full((8, 8), 20.0),
+         "bp_px": np.array([[3.0, 4.0]]), "sensor": np.zeros((8, 8), np.uint8)}
+    rot = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(t), -np.sin(t)], [0.0, np.sin(t), np.cos(t)]])
+    sensor = a["sensor"].copy()
+    sensor[:2] = 1
+    b = {"mask": mask & ~np.eye(8, dtype=bool), "linear": a["linear"] * 1.01, "normals": normals @ rot.T,
+         "depth": a["depth"] * 1.02, "bp_px": a["bp_px"] + [0.5, 0.0], "sensor": sensor}
+    out = variant_differences(a, b)
+    both = mask & ~np.eye(8, dtype=bool)
+    assert out["px"] == both.sum() == 64 - 3 - 7 and out["hit_differs_px"] == 7  # (0, 0) is in both
+    ref = np.percentile(a["linear"][both], 99)
+    assert out["linear_max_rel"] == pytest.approx(0.01 * a["linear"][both].max() / ref, rel=1e-12)
+    assert out["normal_p999_deg"] == pytest.approx(0.1, abs=1e-9)
+    assert out["depth_p999_rel"] == pytest.approx(0.02, rel=1e-12)
+    assert out["bp_max_px"] == 0.5 and out["sensor_equal_frac"] == 0.75 and out["highlights"] == [1, 1]

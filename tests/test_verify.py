@@ -151,6 +151,8 @@ def test_confidence_is_a_probability_and_falls_as_the_peak_takes_the_tissue_colo
     conf = confidence(_evidence(0.6 * np.array([lo, hi]), 2, 1.0 - np.array([lo, hi])), np.array([r, r]))
     assert np.all((conf >= 0) & (conf <= 1))
     assert conf[0] >= conf[1]
+    if hi - lo > 1e-3 and 1.0 - hi > 0.1:  # both white shares above the feature's clip at 0.1: it falls
+        assert conf[0] > conf[1], (lo, hi, conf)
 
 
 def test_the_paleness_bound_is_between_white_and_the_tissue_colour():
