@@ -10,7 +10,7 @@ from pathlib import Path
 
 from simtest.constants import OPENBLAS_CORE, OPENBLAS_CORE_NEEDS
 
-__all__ = ["pin_openblas_kernels"]
+__all__ = ["pin_openblas_kernels", "vector_extension"]
 
 
 def _cpu_flags() -> set[str]:
@@ -20,6 +20,14 @@ def _cpu_flags() -> set[str]:
     except OSError:
         return set()
     return next((set(ln.split(":", 1)[1].split()) for ln in text.splitlines() if ln.startswith("flags")), set())
+
+
+def vector_extension() -> str:
+    """The widest x86 vector extension of this CPU: ``"avx512f"``, ``"avx2"`` or ``"none"`` (elsewhere).
+    Dr.Jit's LLVM backend compiles renders for it (8 lanes with AVX2, 16 with AVX-512), which assigns
+    the sampler's random numbers to other pixels: renders repeat bit for bit only on the same one."""
+    flags = _cpu_flags()
+    return next((f for f in ("avx512f", "avx2") if f in flags), "none")
 
 
 def pin_openblas_kernels() -> str | None:

@@ -49,3 +49,12 @@ def test_this_process_runs_the_kernels_it_asked_for():
     asked = os.environ.get("OPENBLAS_CORETYPE")
     if _CAN_PIN:
         assert asked and all(k.endswith(f" {asked}") for k in kernels), (asked, kernels)
+
+
+@pytest.mark.parametrize("flags, want", [({"avx2", "fma", "avx512f"}, "avx512f"), ({"avx2", "fma"}, "avx2"),
+                                         ({"sse4_2"}, "none"), (set(), "none")])
+def test_the_vector_extension_is_the_widest_the_cpu_flags_name(monkeypatch, flags, want):
+    # a run's provenance records it: renders repeat bit for bit only on the same one
+    import simtest._blas as blas
+    monkeypatch.setattr(blas, "_cpu_flags", lambda: flags)
+    assert blas.vector_extension() == want

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from threadpoolctl import threadpool_info
 
+from simtest._blas import vector_extension
 from simtest.resources import data_root
 
 __all__ = ["provenance", "open_parameters", "make_run_id", "relative_to_repo"]
@@ -83,7 +84,8 @@ def provenance(run) -> dict:
         "machine": {"node": platform.node(), "platform": platform.platform(),
                     "processor": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
                     # two machines repeat each other's figures bit for bit only on the same BLAS kernels
-                    "blas": _blas_kernels()},
+                    # and the same vector width of the renders
+                    "blas": _blas_kernels(), "vector_extension": vector_extension()},
         "workers": run.workers, "started_utc": run.started_utc, "wall_time_s": round(run.wall_s, 3),
         "realisations_per_s": rates,
     }
