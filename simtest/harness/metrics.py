@@ -143,7 +143,7 @@ def summarise_records(records) -> dict | None:
     dep = dep[np.isfinite(dep)]
     okerr = err[ok & np.isfinite(err)] if t else err
     sig = np.array([np.nan if r.get("sigma_deg") is None else r["sigma_deg"] for r in t], dtype=np.float64)
-    stated = np.isfinite(sig) & np.isfinite(err) if t else np.zeros(0, bool)
+    stated = np.isfinite(sig) & np.isfinite(err)
     dcov = np.array([r.get("depth_within_2sigma", np.nan) for r in t], dtype=np.float64)
     dcov = dcov[np.isfinite(dcov)]
     n = len(t)
