@@ -507,6 +507,27 @@ def test_cubic_patch_fit_is_exact_on_a_sphere_under_two_lights(eps):
     assert est.depth_rel_sigma < TOL.depth_rel_sigma_max
 
 
+def test_quadric_fit_gives_each_lights_specular_point_on_a_sphere_under_two_lights():
+    # The quadric patch (its z^2 term included) is exact on a sphere: each light's specular point
+    # on the fitted patch is the sphere's, whose normal differs from the apex's (the mean light's)
+    # by degrees; a stated sigma for each. Lights at epsilon/d 0.1, their lobes fused into one
+    # highlight (at 0.3 the quadric's flat starts end in a local minimum, patch_misfit)
+    lights = [(-5.0, 0.0, 0.0), (5.0, 0.0, 0.0)]
+    img, rig, bp = sphere_rig_case(lights)
+    est = la.quadric_fit(img, (0, 0), bp, SPHERE_K, rig, nominal_depth_mm=20.0)
+    assert est.ok, est
+    assert est.light_normals.shape == (2, 3) and np.all(np.isfinite(est.light_normal_sigmas_deg))
+    for j, L in enumerate(lights):
+        X, n = sphere_specular_point(L)
+        assert angle_between_deg(est.normal, n) > 1.0  # the apex's normal is not this light's
+        assert angle_between_deg(est.light_normals[j], n) < TOL.exact_image_normal_deg
+        assert abs(est.light_depths_mm[j] / np.linalg.norm(X) - 1) < TOL.exact_image_depth_rel
+    # under one light the depth is not observable, and with it where a specular point lies
+    img1, rig1, bp1 = sphere_rig_case(lights[1:])
+    one = la.quadric_fit(img1, (0, 0), bp1, SPHERE_K, rig1, nominal_depth_mm=20.0)
+    assert one.status == "depth_not_observable" and one.light_normals is None and one.light_depths_mm is None
+
+
 @pytest.mark.parametrize("eps", [5.0, 15.0])
 def test_cubic_patch_fit_depth_is_not_observable_under_one_light(eps):
     # The same sphere lit by one of the two lights: the third-order terms stand in for the

@@ -220,7 +220,8 @@ register("isocurve_fit", _light_aware("isocurve_fit"), kind="light_aware", outpu
          description="general isocurve (eq. 2) fitted with the calibrated light (light-aware)")
 register("photometric_fit", _light_aware("photometric_fit"), kind="light_aware", outputs=_FIT, status_free=True, rank=0,
          description="ROI intensities fitted with a plane lit by the rig (light-aware)")
-register("quadric_fit", _light_aware("quadric_fit"), kind="light_aware", outputs=_FIT, status_free=True, rank=2,
+register("quadric_fit", _light_aware("quadric_fit"), kind="light_aware", outputs=_FIT + ("light_normals",),
+         status_free=True, rank=2,
          description="ROI intensities fitted with a quadric patch lit by the rig (experimental)")
 register("cubic_patch_fit", _light_aware("cubic_patch_fit"), kind="light_aware",
          outputs=_FIT + ("light_normals",), status_free=True, rank=1,

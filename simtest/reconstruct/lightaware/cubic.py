@@ -6,23 +6,14 @@ from __future__ import annotations
 import numpy as np
 
 from simtest._lazy import require
-from simtest.geometry.angles import unit
-from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.patch import (
-    _fit_fixed_depth, _patch_lobes, _patch_problem, _patch_uncertainty, _quadric_frame, _quadric_root,
-    _valley_sigma_deg,
+    _fit_fixed_depth, _light_normals, _patch_problem, _patch_uncertainty,
 )
+from simtest.reconstruct.lightaware.patch_geometry import PATCH_PARAMS as _CUBIC_PARAMS
+from simtest.reconstruct.lightaware.patch_geometry import _cubic_patch_geometry, _cubic_patch_image
 from simtest.reconstruct.lightaware.solve import _implausible
-
-
-#: Newton steps that take a pixel ray's intersection from the quadric's root to the cubic patch's.
-_CUBIC_NEWTON_STEPS = 4
-
-#: Parameters of the cubic patch: (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n) and the four
-#: dimensionless third-order coefficients (c_xxx, c_xxy, c_xyy, c_yyy).
-_CUBIC_PARAMS = 11
 
 #: Depths of the coarse profile, as multiples of ``nominal_depth_mm``: 0.25 to 8, a factor 2 apart.
 _PROFILE_FACTORS = 2.0 ** np.arange(-2, 4)
@@ -38,87 +29,6 @@ _PROFILE_STEP = 1.25
 #: :func:`patch_depth_profile` also starts each depth from a flat patch whose Phong n is this
 #: fraction of the start roughness: its wider lobes overlap image lobes that narrower ones miss.
 _PROFILE_WIDE_START = 0.2
-
-
-def _cubic_patch_geometry(d, b_ray, p, Lm):
-    """Intersections and surface normals of the cubic patch ``p`` along rays d. Returns
-    ``(X (N, 3), ns (N, 3), ok (N,), N (3,), s, frame)``: points and unit normals (camera frame), which rays meet the
-    patch in front of the camera, the apex normal, the apex depth s and the apex frame ``(P0, t1, t2, N)``. For K
-    patches ``p`` (K, 11): X, ns (K, N, 3), ok (K, N), N (K, 3), s (K, 1), each bit for bit its own."""
-    one = np.ndim(p) == 1
-    basis = plane_basis(b_ray)
-    frames = [_quadric_frame(*basis, b_ray, pk, Lm) for pk in np.atleast_2d(p)]
-    s, P0, N, t1, t2 = frames[0] if one else (np.array(v) for v in zip(*frames))
-    s = s if one else s[:, None]
-    kxx, kxy, kyy = (p[3] / s, p[4] / s, p[5] / s) if one else (p[:, 3:4] / s, p[:, 4:5] / s, p[:, 5:6] / s)
-    kzz = 0.5 * (kxx + kyy)
-    c3 = np.asarray(p[..., 7:11], dtype=np.float64) * np.exp(-2.0 * np.asarray(p[..., 2:3], dtype=np.float64))
-    cxxx, cxxy, cxyy, cyyy = c3 if one else c3.T[:, :, None]
-    # the quadric's root (as in _quadric_image), then Newton on the full F along the ray
-    ax, ay, az, bx, by, bz, t, ok = _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N)
-    t = np.where(ok, t, s)
-
-    def grad(t):
-        x, y, z = ax * t + bx, ay * t + by, az * t + bz
-        fx = kxx * x + kxy * y + 0.5 * (cxxx * x * x + 2 * cxxy * x * y + cxyy * y * y)
-        fy = kxy * x + kyy * y + 0.5 * (cxxy * x * x + 2 * cxyy * x * y + cyyy * y * y)
-        return x, y, z, fx, fy, 1.0 + kzz * z
-
-    cubic = np.any(c3 != 0, axis=-1, keepdims=not one)  # a quadric patch keeps the quadric's root
-    for _ in range(_CUBIC_NEWTON_STEPS if np.any(cubic) else 0):
-        x, y, z, fx, fy, fz = grad(t)
-        F = (z + 0.5 * (kxx * x * x + 2 * kxy * x * y + kyy * y * y + kzz * z * z)
-             + (cxxx * x**3 + 3 * cxxy * x * x * y + 3 * cxyy * x * y * y + cyyy * y**3) / 6.0)
-        dF = fx * ax + fy * ay + fz * az
-        good = np.abs(dF) > 1e-12
-        t = np.where(cubic, t - np.where(good, F / np.where(good, dF, 1.0), 0.0), t)
-    ok &= (t > 0) & np.isfinite(t)
-    t = np.where(ok, t, s)
-    _, _, _, fx, fy, fz = grad(t)
-    ns = fz[..., None] * N[..., None, :] + fx[..., None] * t1[..., None, :] + fy[..., None] * t2[..., None, :]
-    ns /= np.sqrt(np.einsum("...ij,...ij->...i", ns, ns))[..., None]
-    return d * t[..., None], ns, ok, N, s, (P0, t1, t2, N)
-
-
-def _cubic_patch_image(d, b_ray, p, rig_arr, Lm):
-    """Specular image (N,) of the cubic patch ``p`` along rays d, and its apex normal (3,); for K patches
-    ``p`` (K, 11), images (K, N) and normals (K, 3), each bit for bit its own."""
-    X, ns, ok, N, s, _ = _cubic_patch_geometry(d, b_ray, p, Lm)
-    return _patch_lobes(d, X, ns, ok, s, np.exp(p[..., 6:7] if np.ndim(p) == 2 else p[6]), rig_arr), N
-
-
-def _patch_specular_points(b_ray, p, Lm, lights):
-    """Each light's specular point on the cubic patch ``p``: unit normals (J, 3) and depths (J,). Searched along the
-    rays ``unit(b + u e1 + v e2)`` by Levenberg-Marquardt from the apex's ray, where the normal bisects the directions
-    to the camera and the light; NaN rows where it fails."""
-    opt = require("scipy.optimize")  # when first needed: scipy slows the start
-    e1, e2 = plane_basis(b_ray)
-    ray0 = np.array([p[0], p[1]], dtype=np.float64)
-    normals = np.full((len(lights), 3), np.nan)
-    depths = np.full(len(lights), np.nan)
-    for j, Lj in enumerate(lights):
-        def f(q, Lj=Lj):
-            X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + q[0] * e1 + q[1] * e2)[None], b_ray, p, Lm)
-            if not ok[0]:
-                return np.array([1.0, 1.0])
-            c = ns[0] - unit(unit(-X[0]) + unit(Lj - X[0]))
-            return np.array([c @ e1, c @ e2])
-
-        with np.errstate(all="ignore"):
-            r = opt.least_squares(f, ray0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
-        X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + r.x[0] * e1 + r.x[1] * e2)[None], b_ray, p, Lm)
-        if ok[0] and float(np.max(np.abs(r.fun))) < 1e-9:
-            normals[j], depths[j] = ns[0], float(np.linalg.norm(X[0]))
-    return normals, depths
-
-
-def _light_normal_jacobian(b_ray, p, Lm, lights, x_scale) -> np.ndarray:
-    """The derivative (J, 3, 11) of each light's specular-point normal in the patch's parameters, by
-    central differences (1e-4 of ``x_scale``; NaN where a specular point is not found)."""
-    h = 1e-4 * np.asarray(x_scale, dtype=np.float64)
-    return np.stack([(_patch_specular_points(b_ray, p + e, Lm, lights)[0]
-                      - _patch_specular_points(b_ray, p - e, Lm, lights)[0]) / (2 * hi) for e, hi in zip(np.diag(h), h)],
-                    axis=-1)
 
 
 def _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels):
@@ -307,13 +217,7 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_lev
         "the ROI is not one patch's lobes (streaks along folds, a lobe cut off)")
     if status == "ok":
         detail = f"profile minimum at {depths[i0]:.4g} mm; {detail}"
-    ln = ld = lsig = None
-    if observable:
-        ln, ld = _patch_specular_points(b_ray, x, Lm, S["rig_arr"][0])
-        if covs:
-            GL = _light_normal_jacobian(b_ray, x, Lm, S["rig_arr"][0], S["x_scale"])
-            lsig = np.array([np.nan if not np.isfinite(g).all()
-                             else _valley_sigma_deg(g, covs, g @ valley, excess) for g in GL])
+    ln, ld, lsig = _light_normals(observable, b_ray, x, Lm, S["rig_arr"][0], S["x_scale"], covs, valley, excess)
     return LightAwareEstimate(name, status, detail, n_hat, s_hat if observable else None,
                               sigma_deg, depth_sigma, s_hat if observable else None, rough, None,
                               nfev, rms, ln, ld, rel_floor, light_normal_sigmas_deg=lsig)

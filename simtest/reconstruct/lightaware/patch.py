@@ -9,82 +9,14 @@ import numpy as np
 
 from simtest._lazy import require
 from simtest.decisions import ONE_LIGHT_DEPTH_FACTOR
-from simtest.geometry.angles import unit
-from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.model import _mean_light, _rays, _rig_arrays, _roi_grid, _roi_samples
+from simtest.reconstruct.lightaware.patch_geometry import (
+    _light_normal_jacobian, _patch_specular_points, _quadric_image,
+)
 from simtest.reconstruct.lightaware.solve import _covariance, _hac_covariance, _implausible, _patch_verdict
-
-
-def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
-    """Where rays ``t d`` (d (k, 3)) first meet the quadric patch at P0 in the frame (t1, t2, N):
-    ``(ax, ay, az, bx, by, bz, t, ok)``, the rays and -P0 in that frame, the ray parameter (inf
-    without a root) and where a real, positive, finite root exists. ``k_zz = (k_xx + k_yy) / 2``;
-    for K patches: curvatures (K, 1), frame vectors (K, 3), arrays (K, k)."""
-    kzz = 0.5 * (kxx + kyy)
-    one = P0.ndim == 1  # else each patch's products as its own (the same bits)
-    ax, ay, az = (d @ v if one else np.array([d @ u for u in v]) for v in (t1, t2, N))
-    bx, by, bz = (-(P0 @ v) if one else -np.array([[a @ u] for a, u in zip(P0, v)]) for v in (t1, t2, N))
-    A = 0.5 * (kxx * ax * ax + 2 * kxy * ax * ay + kyy * ay * ay + kzz * az * az)
-    B = az + (kxx * ax * bx + kxy * (ax * by + ay * bx) + kyy * ay * by + kzz * az * bz)
-    C = bz + 0.5 * (kxx * bx * bx + 2 * kxy * bx * by + kyy * by * by + kzz * bz * bz)
-    disc = B * B - 4 * A * C
-    ok = disc >= 0
-    den = B + np.where(B >= 0, 1.0, -1.0) * np.sqrt(np.where(ok, disc, 0.0))
-    good_den = np.abs(den) > 1e-15
-    t = np.where(good_den, -2 * C / np.where(good_den, den, 1.0), np.inf)
-    ok &= (t > 0) & np.isfinite(t)
-    return ax, ay, az, bx, by, bz, t, ok
-
-def _patch_lobes(d, X, ns, ok, s, rough, rig_arr):
-    """The rig's Phong lobes (N,) along rays d (N, 3) on a curved patch: points X (N, 3), unit normals
-    ns (N, 3), ``ok`` where the ray meets it, apex depth s (the falloff's reference), roughness n; 0
-    where the ray misses or the patch faces away. For K patches: X, ns (K, N, 3), s, n (K, 1)."""
-    L, w, inv_sq, m = rig_arr
-    nv = -np.einsum("...ij,...ij->...i", ns, d)
-    out = np.zeros(nv.shape)
-    for j in range(len(w)):
-        tl = L[j] - X
-        r = np.sqrt(np.einsum("...ij,...ij->...i", tl, tl))
-        cb = (2.0 * np.einsum("...ij,...ij->...i", ns, tl) * nv + np.einsum("...ij,...ij->...i", tl, d)) / r
-        pos = cb > 0
-        val = np.where(pos, np.exp(rough * np.log(np.where(pos, cb, 1.0))), 0.0)
-        if inv_sq[j]:
-            val = val * (s / r) ** 2
-        if m[j] > 0:
-            val = val * np.maximum((X[..., 2] - L[j, 2]) / r, 0.0) ** m[j]
-        out += w[j] * val
-    return np.where(ok & (nv > 0), out, 0.0)
-
-
-def _quadric_frame(e1, e2, b_ray, p, Lm):
-    """The apex depth s, apex P0 and frame (N, t1, t2) of the quadric patch ``p`` (e1, e2: b_ray's basis)."""
-    s = np.exp(p[2])
-    P0 = s * unit(b_ray + p[0] * e1 + p[1] * e2)
-    N = unit(unit(-P0) + unit(Lm - P0))
-    return (s, P0, N, *plane_basis(N))
-
-
-def _quadric_image(d, b_ray, p, rig_arr, Lm):
-    """Specular image (N,) of the quadric patch ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``
-    along rays d and its apex normal (3,) (:func:`quadric_fit`); for K patches ``p`` (K, 7), images
-    (K, N), each bit for bit its own, and normals (K, 3). Rays that miss give 0."""
-    basis = plane_basis(b_ray)  # each patch's apex and frame its own (the same bits)
-    frames = [_quadric_frame(*basis, b_ray, pk, Lm) for pk in np.atleast_2d(p)]
-    s, P0, N, t1, t2 = frames[0] if np.ndim(p) == 1 else (np.array(v) for v in zip(*frames))
-    s = s if np.ndim(p) == 1 else s[:, None]
-    kxx, kxy, kyy = p[..., 3:4] / s, p[..., 4:5] / s, p[..., 5:6] / s
-    # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray X = t d
-    kzz = 0.5 * (kxx + kyy)  # the z^2 term: exact for a sphere
-    ax, ay, az, bx, by, bz, t, ok = _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N)
-    t = np.where(ok, t, s)
-    x, y, z = ax * t + bx, ay * t + by, az * t + bz
-    ns = ((1.0 + kzz * z)[..., None] * N[..., None, :] + (kxx * x + kxy * y)[..., None] * t1[..., None, :]
-          + (kxy * x + kyy * y)[..., None] * t2[..., None, :])
-    ns /= np.sqrt(np.einsum("...ij,...ij->...i", ns, ns))[..., None]
-    return _patch_lobes(d, d * t[..., None], ns, ok, s, np.exp(p[..., 6:7]), rig_arr), N
 
 
 @dataclass
@@ -200,8 +132,11 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     LightAwareEstimate
         ``estimator="quadric_fit"``, status ``ok`` (separate lights only), ``depth_not_observable``,
         ``patch_misfit`` (correlated residuals, or RMS above ``TOL.patch_misfit_rms_rel``) or
-        ``not_converged``; ``distance_mm`` is the apex depth s; sigmas from the larger of the
-        covariances (:func:`_patch_covariances`) and the depth valley (:func:`_depth_valley`).
+        ``not_converged``; ``distance_mm`` is the apex depth s (the mean light's specular point);
+        sigmas from the larger of the covariances (:func:`_patch_covariances`) and the depth valley
+        (:func:`_depth_valley`). With an observable depth, each light's specular point on the patch
+        (``light_normals`` (J, 3), ``light_depths_mm`` (J,), ``light_normal_sigmas_deg``): on a
+        curved surface each guide's highlight has its own normal, which the apex's is not.
 
     Raises
     ------
@@ -228,10 +163,12 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     if best.status <= 0 or bad:
         return LightAwareEstimate(name, "not_converged", bad or best.message, n_evaluations=nfev)
     G = _apex_normal_gradient(d[:1], b_ray, x, x_scale, rig_arr, Lm)
-    status, detail, observable, rms, sigma_deg, _, excess, depth_sigma, rel_floor, _ = _patch_uncertainty(
+    status, detail, observable, rms, sigma_deg, valley, excess, depth_sigma, rel_floor, covs = _patch_uncertainty(
         best, {"res": res, "x_scale": x_scale, "batched": True}, sel, P.shape, step, x, G, misfit_sigma, max_nfev,
         "the ROI is not one patch's lobe (streaks along folds, several lobes)")
     depth_range = None
+    ln, ld, lsig = _light_normals(observable and rig.has_separate_lights, b_ray, x, Lm, rig_arr[0], x_scale, covs,
+                                  valley, excess)
     if not rig.has_separate_lights:
         # one light: the third-order shape the quadric leaves out trades with the depth
         sigma_deg, depth_range = _one_light_band(x, sigma_deg, d[:1], b_ray, rig_arr, Lm)
@@ -242,7 +179,23 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
         observable = False
     return LightAwareEstimate(name, status, detail, n_hat, s_hat if observable else None, sigma_deg,
                               depth_sigma if observable else None, s_hat if observable else None, rough, None,
-                              nfev, rms, depth_rel_sigma=rel_floor, depth_range_mm=depth_range)
+                              nfev, rms, ln, ld, rel_floor, depth_range_mm=depth_range, light_normal_sigmas_deg=lsig)
+
+
+def _light_normals(observable, b_ray, x, Lm, lights, x_scale, covs, valley, excess):
+    """``(normals (J, 3), depths (J,), sigmas (J,))`` of each light's specular point on the fitted patch ``x``
+    (:func:`~simtest.reconstruct.lightaware.patch_geometry._patch_specular_points`), the sigmas (deg) through
+    the covariances and the depth valley as the apex normal's; all None where the depth is not ``observable``
+    (the patch's place along the rays, and so where each light's specular point lies on it, is not known),
+    the sigmas None without ``covs``."""
+    if not observable:
+        return None, None, None
+    ln, ld = _patch_specular_points(b_ray, x, Lm, lights)
+    if not covs:
+        return ln, ld, None
+    GL = _light_normal_jacobian(b_ray, x, Lm, lights, x_scale)
+    return ln, ld, np.array([np.nan if not np.isfinite(g).all() else _valley_sigma_deg(g, covs, g @ valley, excess)
+                             for g in GL])
 
 
 def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
