@@ -507,12 +507,14 @@ def test_cubic_patch_fit_is_exact_on_a_sphere_under_two_lights(eps):
     assert est.depth_rel_sigma < TOL.depth_rel_sigma_max
 
 
-def test_quadric_fit_gives_each_lights_specular_point_on_a_sphere_under_two_lights():
+@pytest.mark.parametrize("eps", [5.0, 15.0])  # epsilon/d 0.1 and 0.3
+def test_quadric_fit_gives_each_lights_specular_point_on_a_sphere_under_two_lights(eps):
     # The quadric patch (its z^2 term included) is exact on a sphere: each light's specular point
     # on the fitted patch is the sphere's, whose normal differs from the apex's (the mean light's)
-    # by degrees; a stated sigma for each. Lights at epsilon/d 0.1, their lobes fused into one
-    # highlight (at 0.3 the quadric's flat starts end in a local minimum, patch_misfit)
-    lights = [(-5.0, 0.0, 0.0), (5.0, 0.0, 0.0)]
+    # by degrees; a stated sigma for each. At epsilon/d 0.1 the lobes fuse into one highlight and
+    # the flat starts find the patch; at 0.3 (lobes apart) they end in a local minimum
+    # (patch_misfit at 98 mm, the truth 50) and the coarse depth profile's start finds it
+    lights = [(-eps, 0.0, 0.0), (eps, 0.0, 0.0)]
     img, rig, bp = sphere_rig_case(lights)
     est = la.quadric_fit(img, (0, 0), bp, SPHERE_K, rig, nominal_depth_mm=20.0)
     assert est.ok, est

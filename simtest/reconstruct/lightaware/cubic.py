@@ -9,18 +9,12 @@ from simtest._lazy import require
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.patch import (
-    _fit_fixed_depth, _light_normals, _patch_problem, _patch_uncertainty,
+    _PROFILE_FACTORS, _coarse_profile, _fit_fixed_depth, _flat_start, _light_normals, _patch_problem,
+    _patch_uncertainty,
 )
 from simtest.reconstruct.lightaware.patch_geometry import PATCH_PARAMS as _CUBIC_PARAMS
 from simtest.reconstruct.lightaware.patch_geometry import _cubic_patch_geometry, _cubic_patch_image
 from simtest.reconstruct.lightaware.solve import _implausible
-
-#: Depths of the coarse profile, as multiples of ``nominal_depth_mm``: 0.25 to 8, a factor 2 apart.
-_PROFILE_FACTORS = 2.0 ** np.arange(-2, 4)
-
-#: Evaluation budget (in Jacobian evaluations) and tolerance of each fit of the coarse profile (a start).
-_PROFILE_NFEV = 30
-_PROFILE_TOL = 1e-5
 
 #: Largest ratio between neighbouring depths of :func:`patch_depth_profile`, whose fits start
 #: from their neighbour's solution.
@@ -50,12 +44,6 @@ def _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels):
     x_scale = np.array([1.0 / px, 1.0 / px, 0.1, 0.1, 0.1, 0.1, 0.3, 0.1, 0.1, 0.1, 0.1])
     return {"res": res, "b_ray": b_ray, "Lm": Lm, "rig_arr": rig_arr, "x_scale": x_scale,
             "sel": P.sel, "step": P.step, "shape": P.shape, "m": n_px, "batched": True}
-
-
-def _flat_start(roughness):
-    p = np.zeros(_CUBIC_PARAMS)
-    p[6] = np.log(roughness)
-    return p
 
 
 def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_mm, *, clip_level: float | None = None,
@@ -101,7 +89,7 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
         raise ValueError("values: fewer unclipped pixels than twice the patch's parameters")
     free = [0, 1, 3, 4, 5, 6] + ([7, 8, 9, 10] if cubic else [])
     n0 = 50.0 if start_roughness is None else float(start_roughness)
-    flats = [_flat_start(n0), _flat_start(_PROFILE_WIDE_START * n0)]
+    flats = [_flat_start(n0, _CUBIC_PARAMS), _flat_start(_PROFILE_WIDE_START * n0, _CUBIC_PARAMS)]
     # the depths asked for, with steps of at most _PROFILE_STEP between them for the warm starts
     lo, hi = np.log(depths.min()), np.log(depths.max())
     grid = np.union1d(np.log(depths), np.linspace(lo, hi, int(np.ceil((hi - lo) / np.log(_PROFILE_STEP))) + 1))
@@ -116,27 +104,6 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
                 cost[i], sol[i] = c, p
             prev = sol.get(i, flats[0])  # flats[0]: what a depth without a finite fit gave
     return cost[np.searchsorted(grid, np.log(depths))]
-
-
-def _coarse_profile(S, depths, start_roughness, max_nfev):
-    """:func:`cubic_patch_fit`'s coarse quadric profile over ``depths``, swept up and down from a flat
-    patch and the neighbour's solution. Returns ``(cost, sol, nfev)``."""
-    n0 = 50.0 if start_roughness is None else float(start_roughness)
-    flat = _flat_start(n0)
-    quad = [0, 1, 3, 4, 5, 6]
-    cost = np.full(depths.size, np.inf)
-    sol: list = [None] * depths.size
-    nfev = 0
-    for seq in (range(depths.size), range(depths.size - 1, -1, -1)):
-        prev = None
-        for i in seq:
-            starts = [flat] + ([prev] if prev is not None else [])
-            c, p, k = _fit_fixed_depth(S, np.log(depths[i]), quad, starts, min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
-            nfev += k
-            if c < cost[i]:
-                cost[i], sol[i] = c, p
-            prev = sol[i] if sol[i] is not None else p
-    return cost, sol, nfev
 
 
 def _apex_normal_gradient(b_ray, x, x_scale, Lm) -> np.ndarray:
@@ -195,7 +162,7 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_lev
     if S is None:
         return LightAwareEstimate(name, "too_few_points", f"fewer than {2 * _CUBIC_PARAMS} unclipped pixels")
     depths = float(nominal_depth_mm) * _PROFILE_FACTORS
-    cost, sol, nfev = _coarse_profile(S, depths, start_roughness, max_nfev)
+    cost, sol, nfev = _coarse_profile(S, depths, start_roughness, max_nfev, _CUBIC_PARAMS)
     if not np.isfinite(cost).any():
         return LightAwareEstimate(name, "not_converged", "no finite profile", n_evaluations=nfev)
     i0 = int(np.argmin(cost))

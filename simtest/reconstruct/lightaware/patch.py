@@ -3,6 +3,7 @@ fits the quadric and the cubic patch (:mod:`~simtest.reconstruct.lightaware.cubi
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,6 +91,43 @@ def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_rough
     return best, nfev
 
 
+#: Depths of the coarse profile, as multiples of ``nominal_depth_mm``: 0.25 to 8, a factor 2 apart.
+_PROFILE_FACTORS = 2.0 ** np.arange(-2, 4)
+
+#: Evaluation budget (in Jacobian evaluations) and tolerance of each fit of the coarse profile (a start).
+_PROFILE_NFEV = 30
+_PROFILE_TOL = 1e-5
+
+def _flat_start(roughness, k):
+    """A flat patch of ``k`` parameters (7: a quadric, 11: a cubic patch) at the BP's ray, Phong n ``roughness``."""
+    p = np.zeros(k)
+    p[6] = np.log(roughness)
+    return p
+
+
+def _coarse_profile(S, depths, start_roughness, max_nfev, k):
+    """The coarse quadric profile over ``depths`` (mm) of a patch of ``k`` parameters (its third-order terms,
+    if any, held at 0), swept up and down from a flat patch and the neighbour's solution: the start of
+    :func:`~simtest.reconstruct.lightaware.cubic.cubic_patch_fit` and, under separate lights, of
+    :func:`quadric_fit` where its flat starts end in a misfit. Returns ``(cost, sol, nfev)``."""
+    n0 = 50.0 if start_roughness is None else float(start_roughness)
+    flat = _flat_start(n0, k)
+    quad = [0, 1, 3, 4, 5, 6]
+    cost = np.full(depths.size, np.inf)
+    sol: list = [None] * depths.size
+    nfev = 0
+    for seq in (range(depths.size), range(depths.size - 1, -1, -1)):
+        prev = None
+        for i in seq:
+            starts = [flat] + ([prev] if prev is not None else [])
+            c, p, nf = _fit_fixed_depth(S, np.log(depths[i]), quad, starts, min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
+            nfev += nf
+            if c < cost[i]:
+                cost[i], sol[i] = c, p
+            prev = sol[i] if sol[i] is not None else p
+    return cost, sol, nfev
+
+
 def _apex_normal_gradient(d1, b_ray, x, x_scale, rig_arr, Lm) -> np.ndarray:
     """dN / dp (3, 7) of the quadric patch's apex normal, by central differences of ``1e-6 x_scale``."""
     dp = np.diag(1e-6 * x_scale)
@@ -143,19 +181,42 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     ValueError
         A values array that is not 2-D and finite.
     """
-    name = "quadric_fit"
     P, n_px = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels, 12)
     if P is None:
-        return LightAwareEstimate(name, "too_few_points", f"{n_px} unclipped pixels")
-    d, b_ray, rig_arr, Lm, sel, step = P.d, P.b_ray, P.rig_arr, P.Lm, P.sel, P.step
+        return LightAwareEstimate("quadric_fit", "too_few_points", f"{n_px} unclipped pixels")
+    d, b_ray, rig_arr, Lm = P.d, P.b_ray, P.rig_arr, P.Lm
 
     def res(p):
         return P.residual(_quadric_image(d, b_ray, p, rig_arr, Lm)[0])
 
     x_scale = np.array([1.0 / P.px_per_rad, 1.0 / P.px_per_rad, 0.1, 0.1, 0.1, 0.1, 0.3])
     best, nfev = _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev)
+    S = {"res": res, "x_scale": x_scale, "batched": True}
+    est = _quadric_estimate(best, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev)
+    if rig.has_separate_lights and est.status in ("patch_misfit", "not_converged"):
+        # the flat starts' basin missed the patch: the depth the coarse profile finds starts a second fit
+        cost, sol, n_profile = _coarse_profile(S, float(nominal_depth_mm) * _PROFILE_FACTORS, start_roughness,
+                                               max_nfev, 7)
+        nfev = est.n_evaluations + n_profile
+        if np.isfinite(cost).any():
+            with np.errstate(all="ignore"):
+                again = require("scipy.optimize").least_squares(
+                    res, sol[int(np.argmin(cost))], method="lm", max_nfev=max_nfev * 8, x_scale=x_scale, ftol=1e-6,
+                    xtol=1e-6, workers=lambda f, xs: list(res(np.array(list(xs)))))
+            nfev += again.nfev
+            if np.isfinite(again.cost) and (best is None or again.cost < best.cost):
+                return _quadric_estimate(again, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev)
+        est = dataclasses.replace(est, n_evaluations=nfev)
+    return est
+
+
+def _quadric_estimate(best, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev) -> LightAwareEstimate:
+    """:func:`quadric_fit`'s estimate from its least-squares result ``best`` (None: none finite) on the
+    :class:`_PatchProblem` ``P`` (``S``: its residual and scales), ``nfev`` evaluations spent."""
+    name = "quadric_fit"
     if best is None:
         return LightAwareEstimate(name, "not_converged", "no finite solution", n_evaluations=nfev)
+    d, b_ray, rig_arr, Lm, x_scale = P.d, P.b_ray, P.rig_arr, P.Lm, S["x_scale"]
     x = best.x
     n_hat = _quadric_image(d[:1], b_ray, x, rig_arr, Lm)[1]
     s_hat, rough = float(np.exp(x[2])), float(np.exp(x[6]))
@@ -164,7 +225,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
         return LightAwareEstimate(name, "not_converged", bad or best.message, n_evaluations=nfev)
     G = _apex_normal_gradient(d[:1], b_ray, x, x_scale, rig_arr, Lm)
     status, detail, observable, rms, sigma_deg, valley, excess, depth_sigma, rel_floor, covs = _patch_uncertainty(
-        best, {"res": res, "x_scale": x_scale, "batched": True}, sel, P.shape, step, x, G, misfit_sigma, max_nfev,
+        best, S, P.sel, P.shape, P.step, x, G, misfit_sigma, max_nfev,
         "the ROI is not one patch's lobe (streaks along folds, several lobes)")
     depth_range = None
     ln, ld, lsig = _light_normals(observable and rig.has_separate_lights, b_ray, x, Lm, rig_arr[0], x_scale, covs,
