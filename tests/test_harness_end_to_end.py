@@ -145,7 +145,11 @@ def test_the_figures_count_every_true_highlight_and_the_median_only_the_accepted
     assert e["lobe_ok_per_frame"] == 1.5 and e["median_lobe_ok_deg"] == 2.0
     assert e["statuses"] == {"cluster": 1, "not_detected": 1, "ok": 2}
     assert e["normal_from"] == {"bp_ray": 1, "none": 1, "photometric_fit": 2}
+    assert e["median_ok_bp_ray_deg"] is None  # no record carries the BP ray's error
     assert summarise_records([]) is None
+    # the BP ray's median over the same accepted highlights (the cluster's 9 deg not among them)
+    bp = [dict(r, bp_ray_error_deg=v) for r, v in zip(recs[:4], (2.0, 4.0, 9.0, math.nan))]
+    assert summarise_records(bp)["median_ok_bp_ray_deg"] == 3.0
 
 
 def test_the_report_and_the_readme_lead_with_the_end_to_end_figures(tmp_path):

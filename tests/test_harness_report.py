@@ -309,6 +309,44 @@ def test_curved_offset_claim_holds_or_names_where_it_breaks_and_why():
     assert {c["id"]: c for c in evaluate_claims(doc)}["curved_offset_median"]["holds"] is True
 
 
+def test_curved_claims_judge_what_simtest_reconstruct_gives_where_the_run_holds_it():
+    # issue 63: with end-to-end records the curved claims read the user's median over ok (the
+    # harness's own fits given the highlight beside, not part of the verdict); a case where the
+    # user gets no ok highlight breaks them
+    rng = np.random.default_rng(3)
+    ests = ["recommended", "bp_ray"]
+    c = _case(rng, "sphere_two_lights", 5, "sphere under a light rig, light offset", "rendered", ests,
+              {"recommended": 0.09, "bp_ray": 2.0},
+              {"eps_over_d": 0.1, "cubic_patch_fit_depth_rel_sigma": 0.04})
+    c["colocated"] = False
+    doc = {"sweeps": [], "cases": [c]}
+    for user, holds in ((0.2, True), (2.0, False), (None, False)):
+        c["metrics"]["end_to_end"] = {"n": 12, "median_ok_deg": user,
+                                      "normal_from": {"bp_ray" if user == 2.0 else "quadric_fit": 12}}
+        v = {v["id"]: v for v in evaluate_claims(doc)}
+        for cid in ("curved_offset_median", "two_guides_halve_bp_ray"):
+            assert v[cid]["holds"] is holds, (cid, user, v[cid])
+            assert v[cid]["measured"].startswith("end to end") and "end to end" in v[cid]["scope"]
+            given = f"{c['metrics']['estimators']['recommended']['median']:.3g}"
+            assert "Given the highlight" in v[cid]["measured"] and given in v[cid]["measured"]
+        if not holds:
+            assert "end to end from " in v["curved_offset_median"]["measured"]
+    # a user given the BP ray is no worse than the BP ray on the same highlights, whatever the BP
+    # ray's median over every highlight the harness scored
+    one = _case(rng, "sphere_offset", 15, "sphere, light offset", "rendered", ests,
+                {"recommended": 8.3, "bp_ray": 8.29}, {"eps_over_d": 0.3})
+    one["colocated"] = False
+    one["metrics"]["end_to_end"] = {"n": 6, "median_ok_deg": 8.5, "median_ok_bp_ray_deg": 8.5,
+                                    "normal_from": {"bp_ray": 6}}
+    assert {v["id"]: v for v in evaluate_claims({"sweeps": [], "cases": [one]})}["curved_offset_median"]["holds"]
+    one["metrics"]["end_to_end"]["median_ok_deg"] = 8.6
+    assert not {v["id"]: v for v in evaluate_claims({"sweeps": [], "cases": [one]})}["curved_offset_median"]["holds"]
+    # the status-free medians decide where the run holds no end-to-end records
+    c["metrics"].pop("end_to_end")
+    v = {v["id"]: v for v in evaluate_claims(doc)}
+    assert v["curved_offset_median"]["holds"] and "end to end" not in v["curved_offset_median"]["scope"]
+
+
 def test_an_alarming_curved_fit_is_explained_by_its_depth_observability():
     rng = np.random.default_rng(2)
     c = _case(rng, "liver_offset", 6.4, "liver, light offset", "rendered",

@@ -37,7 +37,8 @@ def frame_records(result, depth_errors) -> list[dict]:
     """The end-to-end records of a render, one per in-frame highlight.
 
     Each holds ``truth``, ``detected``, ``distance_px``, ``status`` (``not_detected`` where none
-    matched), ``normal_from``, ``error_deg``, ``sigma_deg`` (the recommended normal's stated 1-sigma,
+    matched), ``normal_from``, ``error_deg``, ``bp_ray_error_deg`` (the same detection's BP ray:
+    the baseline on the same highlights), ``sigma_deg`` (the recommended normal's stated 1-sigma,
     deg; None where it states none), ``depth_err_pct`` and ``depth_within_2sigma``
     (``depth_errors(estimate, highlight, rig)``'s ``recommended_depth_err_pct`` and
     ``recommended_depth_within_2sigma``: 1 or 0 where the recommended depth states a sigma, else
@@ -58,12 +59,14 @@ def frame_records(result, depth_errors) -> list[dict]:
         dist, best = min(((float(np.linalg.norm(bp - np.asarray(h.bp_px, float))), i)
                           for i, (_, bp) in enumerate(found)), default=(math.inf, None))
         e = found[best][0] if best is not None and dist <= MATCH_PX else None
-        err = score(e, h.normal, ("recommended",), light=int(getattr(h, "light", 0)))["recommended"][0]
+        got = score(e, h.normal, ("recommended", "bp_ray"), light=int(getattr(h, "light", 0)))
+        err = got["recommended"][0]
         rec = getattr(e, "recommended", None)
         depth = depth_errors(e, h, cam.lights)
         out.append({"truth": True, "detected": e is not None, "distance_px": dist,
                     "status": "not_detected" if e is None else str(e.status),
                     "normal_from": None if rec is None else str(rec.normal_from), "error_deg": err,
+                    "bp_ray_error_deg": got["bp_ray"][0],
                     "sigma_deg": None if getattr(rec, "normal_sigma_deg", None) is None
                     else float(rec.normal_sigma_deg),
                     "depth_err_pct": depth["recommended_depth_err_pct"],

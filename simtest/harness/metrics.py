@@ -121,7 +121,8 @@ def summarise_records(records) -> dict | None:
     dict or None
         ``n`` (true highlights), ``detected`` and ``ok`` (shares), ``within_1deg`` and
         ``within_5deg`` (shares whose recommended normal errs at most that much, whatever its
-        status), ``n_ok`` and ``median_ok_deg``, ``median_ok_depth_err_pct``,
+        status), ``n_ok`` and ``median_ok_deg``, ``median_ok_bp_ray_deg`` (the BP ray's on those of
+        them whose records carry ``bp_ray_error_deg``; None where none does), ``median_ok_depth_err_pct``,
         ``false_ok_per_frame`` (ok detections on no listed highlight and no specular lobe),
         ``lobe_ok_per_frame`` and ``median_lobe_ok_deg`` (those on a lobe peak with no exact BP,
         scored against the surface normal there), ``n_sigma`` and ``within_2sigma`` (the true
@@ -142,6 +143,8 @@ def summarise_records(records) -> dict | None:
     dep = np.array([r["depth_err_pct"] for r in t], dtype=np.float64)[ok] if t else np.zeros(0)
     dep = dep[np.isfinite(dep)]
     okerr = err[ok & np.isfinite(err)] if t else err
+    bp = np.array([r.get("bp_ray_error_deg", np.nan) for r in t], dtype=np.float64)
+    okbp = bp[ok & np.isfinite(err) & np.isfinite(bp)] if t else bp
     sig = np.array([np.nan if r.get("sigma_deg") is None else r["sigma_deg"] for r in t], dtype=np.float64)
     stated = np.isfinite(sig) & np.isfinite(err)
     dcov = np.array([r.get("depth_within_2sigma", np.nan) for r in t], dtype=np.float64)
@@ -151,6 +154,7 @@ def summarise_records(records) -> dict | None:
     return {"n": n, "detected": share([r["detected"] for r in t]), "ok": share(ok),
             **{f"within_{d:g}deg": share(np.nan_to_num(err, nan=np.inf) <= d) for d in WITHIN_DEG},
             "n_ok": int(okerr.size), "median_ok_deg": float(np.median(okerr)) if okerr.size else None,
+            "median_ok_bp_ray_deg": float(np.median(okbp)) if okbp.size else None,
             "median_ok_depth_err_pct": float(np.median(dep)) if dep.size else None,
             "false_ok_per_frame": float(np.mean(fo)) if fo.size else None,
             "lobe_ok_per_frame": lobe.size / fo.size if fo.size else None,
