@@ -114,6 +114,18 @@ def test_the_verdict_is_the_users_coverage_and_the_status_free_one_stands_beside
     assert "Given the highlight (the harness's detection, any status) (not part of the verdict)" in v["measured"]
 
 
+def test_the_lowest_cases_are_named_with_their_counts():
+    # "c@0 1 of 3": one of its three stated sigmas covers its error (a share printed as "1 of 12"
+    # once read as one highlight covered where all twelve were)
+    cases = []
+    for i, recs in enumerate(([(0.1, 1.0), (5.0, 1.0), (4.0, 1.0)], [(0.1, 1.0)] * 12)):
+        c = _case(i, [1.0] * 4)
+        c["metrics"]["end_to_end"] = summarise_records([_sigma_rec(*r) for r in recs])
+        cases.append(c)
+    v = {v["id"]: v for v in evaluate_claims({"cases": cases, "sweeps": []})}["sigma_coverage"]
+    assert "lowest cases: c@0 1 of 3, c@1 12 of 12" in v["measured"]
+
+
 def test_a_record_without_a_sigma_or_a_score_is_no_sample_of_the_users_coverage():
     e = summarise_records([_sigma_rec(0.1, 0.1), _sigma_rec(3.0, 1.0, "cluster"), _sigma_rec(5.0, None),
                            _sigma_rec(math.nan, 1.0), {k: v for k, v in _sigma_rec(9.0, 0.1).items()

@@ -541,7 +541,7 @@ def _claim_sigma_coverage(results):
     worst = sorted((share, c["id"], n) for c, share, n in used)[:3]
     text = (("end to end (simtest reconstruct's recommended normal, any status): " if cs else "")
             + f"share within twice the sigma {pooled:.3g} over {stated} highlights with a stated sigma in "
-            f"{len(used)} cases; lowest cases: " + ", ".join(f"{cid} {v:.2g} of {n}" for v, cid, n in worst))
+            f"{len(used)} cases; lowest cases: " + ", ".join(f"{cid} {round(v * n)} of {n}" for v, cid, n in worst))
     for what, shares in (("Given the highlight (the harness's detection, any status)", given if cs else []),
                          ("Depths end to end", e2e("depth_within_2sigma", "n_depth_sigma")),
                          ("Depths given the highlight", _counted(rendered, "recommended_depth_within_2sigma"))):
