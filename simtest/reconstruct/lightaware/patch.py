@@ -98,6 +98,7 @@ _PROFILE_FACTORS = 2.0 ** np.arange(-2, 4)
 _PROFILE_NFEV = 30
 _PROFILE_TOL = 1e-5
 
+
 def _flat_start(roughness, k):
     """A flat patch of ``k`` parameters (7: a quadric, 11: a cubic patch) at the BP's ray, Phong n ``roughness``."""
     p = np.zeros(k)
@@ -146,7 +147,8 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     ``z + (k_xx x^2 + 2 k_xy x y + k_yy y^2 + H z^2) / 2 = 0``, ``k = kappa / s``, ``H = (k_xx + k_yy) / 2``
     (exact for a sphere). Its lobes, gain and linear background give the image; (a, b, log s, kappa,
     log n) are fitted by Levenberg-Marquardt from a flat patch at each start depth until one ends
-    plausible. Under one light the depth trades with the surface's third-order shape and is not
+    plausible; under separate lights, where that ends in a misfit or runs off, again from the best
+    depth of the coarse quadric profile (:func:`_coarse_profile`), the lower cost kept. Under one light the depth trades with the surface's third-order shape and is not
     reported (``depth_range_mm`` instead; :func:`cubic_patch_fit` uses two lights).
 
     Parameters
