@@ -193,6 +193,11 @@ def test_bp_ray_error_of_guides_either_side_of_the_lens():
         0.5 * np.degrees(np.arctan(4.0 / 20.0)), abs=1e-9)
 
 
+#: Twice acos's resolution near 0 (deg): acos(1 - eps) = sqrt(2 eps) rad = 1.2e-6 deg, so two unit
+#: vectors equal to the last bit read as up to that far apart (hypothesis found 1.21e-6 deg).
+ACOS_FLOOR_DEG = 2.0 * float(np.degrees(np.sqrt(2.0 * np.finfo(float).eps)))
+
+
 @settings(max_examples=60, deadline=None)
 @given(tilt=st.floats(0, 45), az=st.floats(0, 360), h=st.floats(8, 60), baseline=st.floats(1.0, 8.0),
        along=st.floats(0, 180), which=st.integers(0, 1))
@@ -200,7 +205,7 @@ def test_the_guides_spread_is_the_angle_to_the_other_guides_plane(tilt, az, h, b
     # A plane lit at its specular point by guide `which` alone has the bisector of the directions to the
     # camera and to that guide as its normal; the other guide's hypothesis, at the same point, the other
     # bisector. The spread at the true normal is exactly the angle between the two bisectors, and under
-    # one light (the same guide alone) 0; 1e-6 deg: rounding.
+    # one light (the same guide alone) 0; to ACOS_FLOOR_DEG, the rounding of an angle read by acos.
     N = tilted_normal(tilt, az)
     a = np.radians(along)
     half = 0.5 * baseline * np.array([np.cos(a), np.sin(a), 0.0])
@@ -209,8 +214,9 @@ def test_the_guides_spread_is_the_angle_to_the_other_guides_plane(tilt, az, h, b
     X, depth = specular_point(N, h, guides[which].position)
     ray = X / np.linalg.norm(X)
     other = unit(-ray + unit(guides[1 - which].position - X))
-    assert guide_spread_deg(ray, N, depth, LightRig(guides)) == pytest.approx(angle_between_deg(N, other), abs=1e-6)
-    assert guide_spread_deg(ray, N, depth, LightRig((guides[which],))) == pytest.approx(0.0, abs=1e-6)
+    assert guide_spread_deg(ray, N, depth, LightRig(guides)) == pytest.approx(angle_between_deg(N, other),
+                                                                             abs=ACOS_FLOOR_DEG)
+    assert guide_spread_deg(ray, N, depth, LightRig((guides[which],))) == pytest.approx(0.0, abs=ACOS_FLOOR_DEG)
 
 
 def test_a_depthless_fit_under_two_guides_counts_their_spread_and_keeps_the_bp_ray():
