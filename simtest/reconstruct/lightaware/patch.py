@@ -67,20 +67,24 @@ def _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels
                          step, keep.shape, px), len(y)
 
 
+def _quadric_lm(res, p0, x_scale, max_nfev):
+    """Levenberg-Marquardt on the quadric's residual ``res`` from ``p0`` (scipy's result), each start's."""
+    with np.errstate(all="ignore"):
+        # workers: the finite differences' points imaged as one batch (bit for bit each alone)
+        return require("scipy.optimize").least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale,
+                                                       ftol=1e-6, xtol=1e-6,
+                                                       workers=lambda f, xs: list(res(np.array(list(xs)))))
+
+
 def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev):
     """:func:`quadric_fit`'s starts: a flat patch at each start depth in turn until one ends plausible.
     Returns the least-squares result kept (None: none finite) and the evaluations spent."""
-    opt = require("scipy.optimize")  # when first needed: scipy slows the start
     starts = (np.array([1.0, 3.0, 0.5]) * nominal_depth_mm if start_depths_mm is None
               else np.asarray(start_depths_mm, dtype=np.float64).reshape(-1))
     n0 = 50.0 if start_roughness is None else float(start_roughness)
     best, nfev = None, 0
     for s0 in starts:
-        p0 = np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)])
-        with np.errstate(all="ignore"):
-            # workers: the finite differences' points imaged as one batch (bit for bit each alone)
-            r = opt.least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale, ftol=1e-6,
-                                  xtol=1e-6, workers=lambda f, xs: list(res(np.array(list(xs)))))
+        r = _quadric_lm(res, np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)]), x_scale, max_nfev)
         nfev += r.nfev
         if np.isfinite(r.cost) and (best is None or r.cost < best.cost):
             best = r
@@ -148,8 +152,9 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     (exact for a sphere). Its lobes, gain and linear background give the image; (a, b, log s, kappa,
     log n) are fitted by Levenberg-Marquardt from a flat patch at each start depth until one ends
     plausible; under separate lights, where that ends in a misfit or runs off, again from the best
-    depth of the coarse quadric profile (:func:`_coarse_profile`), the lower cost kept. Under one light the depth trades with the surface's third-order shape and is not
-    reported (``depth_range_mm`` instead; :func:`cubic_patch_fit` uses two lights).
+    depth of the coarse quadric profile (:func:`_coarse_profile`), the lower cost kept. Under one
+    light the depth trades with the surface's third-order shape and is not reported
+    (``depth_range_mm`` instead; :func:`cubic_patch_fit` uses two lights).
 
     Parameters
     ----------
@@ -201,10 +206,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
                                                max_nfev, 7)
         nfev = est.n_evaluations + n_profile
         if np.isfinite(cost).any():
-            with np.errstate(all="ignore"):
-                again = require("scipy.optimize").least_squares(
-                    res, sol[int(np.argmin(cost))], method="lm", max_nfev=max_nfev * 8, x_scale=x_scale, ftol=1e-6,
-                    xtol=1e-6, workers=lambda f, xs: list(res(np.array(list(xs)))))
+            again = _quadric_lm(res, sol[int(np.argmin(cost))], x_scale, max_nfev)
             nfev += again.nfev
             if np.isfinite(again.cost) and (best is None or again.cost < best.cost):
                 return _quadric_estimate(again, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev)
