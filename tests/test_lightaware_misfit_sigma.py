@@ -65,7 +65,7 @@ def test_a_misfit_reads_its_valley_only_below_a_bound_on_its_local_sigma(monkeyp
     full = quadric_fit(values, (0.0, 0.0), bp, K, TWO_LIGHTS)
     monkeypatch.setattr(patch, "_sigma_deg", original)
     assert full.status == "patch_misfit" and full.normal_sigma_deg is not None
-    local = readings[0]
+    local = readings[-1]  # the returned fit's (the profile's refit, where it replaced the flat starts' misfit)
     assert full.normal_sigma_deg >= local
     above = quadric_fit(values, (0.0, 0.0), bp, K, TWO_LIGHTS, misfit_sigma=local * 1.000001)
     assert above.normal_sigma_deg == full.normal_sigma_deg and above.detail == full.detail
