@@ -508,6 +508,12 @@ PAIR_TOL_PX = decision(
     "Largest distance between a peak's region and the rig's predicted curve for it to be another "
     "guide's highlight: half a pixel of BP rounding per axis and about a pixel of the detection's "
     "blur (as OWN_RADIUS_PX).", basis="physics", stage=_V)
+LIGHT_AWARE_ROI_SCALE = decision(
+    "LIGHT_AWARE_ROI_SCALE", 2.5, "times the detection's ROI half-size, about the BP",
+    "The window the photometric fit reads (the lobe's tails down to the background, which the detection's ROI, "
+    "cut near the isophote, leaves out), and so the reach within which another candidate's ROI may hold another "
+    "guide's lobe of the same curved patch; the fits' default since they began, not re-chosen.",
+    basis="convention", stage=_L)
 GUIDE_SEEN_REL = decision(
     "GUIDE_SEEN_REL", 0.5, "share of a guide's predicted lobe height",
     "A plane fit predicts every guide's specular point and how high its lobe rises there relative to "

@@ -17,7 +17,7 @@ from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
 from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, CLIP_NOISE_FROM_REL, GUIDE_SEEN_REL, ISOCURVE_ISOVALUES,
-                               LOBE_EDGE_REL, LOBE_ROI_MISMATCH, PAIR_TOL_PX, SIGMA_MARGIN)
+                               LIGHT_AWARE_ROI_SCALE, LOBE_EDGE_REL, LOBE_ROI_MISMATCH, PAIR_TOL_PX, SIGMA_MARGIN)
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi, border_ring
@@ -47,11 +47,11 @@ def _offset_rig(rig) -> bool:
 
 
 def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm: float = 20.0,
-                          saturation_level: float | None = None, roi_scale: float = 2.5,
+                          saturation_level: float | None = None, roi_scale: float = LIGHT_AWARE_ROI_SCALE,
                           quadric_roi_scale: float = 1.5, supersample: int = 1, quadric: bool | None = None,
                           cubic: bool | None = False, response=None, diffuse: bool | None = None,
                           lobe: str | None = None, linear=None, colour: bool | None = None,
-                          floor_refit: bool = False, pair_starts=()) -> dict[str, LightAwareEstimate]:
+                          floor_refit: bool = False, pair_starts=(), lobe_partners=()) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes its own isophotes (module docstring); ``photometric_fit`` the ROI grown
@@ -99,6 +99,10 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         the partner by more than the lobe's size becomes ``guide_misfit`` (one guide's lobe alone hardly
         tells which guide lit it), as does any plane fit that puts another guide's lobe in the frame
         where the image shows none (:func:`_unseen_guide`).
+    lobe_partners : sequence of (float, float)
+        BPs (u, v), px, of the other candidates whose ROI meets the grown one (:func:`with_light_aware`).
+        Under separate lights they may be the other guides' lobes of one curved patch: a quadric fit that
+        fails on its own ROI is fitted again on the ROI that holds them too.
     colour : bool, optional
         Fit on the ROI's three linear channels, the body colours projected out (None:
         :func:`colour_fit_applies`).
@@ -169,7 +173,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     out["photometric_fit"] = pf
     _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level, cubic=cubic,
                  nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric,
-                 paired=paired)
+                 paired=paired, partners=lobe_partners if rig.has_separate_lights else ())
     return out
 
 
@@ -185,10 +189,13 @@ def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
     half = max(big.shape) / 2.0
     partners = pair_partners(camera, rig, bp_uv, starts)
     boxes = [Roi.around(uv, half, shape) for uv in partners[_in_frame(partners, shape)]]
-    if not boxes:
-        return None
-    return Roi(min(b.row0 for b in (big, *boxes)), max(b.row1 for b in (big, *boxes)),
-               min(b.col0 for b in (big, *boxes)), max(b.col1 for b in (big, *boxes)))
+    return _roi_union(big, *boxes) if boxes else None
+
+
+def _roi_union(*rois: Roi) -> Roi:
+    """The smallest ROI that holds every one of ``rois``."""
+    return Roi(min(b.row0 for b in rois), max(b.row1 for b in rois), min(b.col0 for b in rois),
+               max(b.col1 for b in rois))
 
 
 def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, camera, rig) -> str:
@@ -361,13 +368,18 @@ def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> R
 
 
 def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturation_level, nominal_depth_mm,
-                 quadric_roi_scale, quadric, cubic, paired: bool = False) -> None:
+                 quadric_roi_scale, quadric, cubic, paired: bool = False, partners=()) -> None:
     """The curved-patch fits added to ``out`` (the photometric fit's) as ``quadric`` and ``cubic``
     say, and every fit released: its depth within the ceiling, the BP ray's error beside it set, a
     depth-less one's sigma with the guides' spread (:func:`~simtest.reconstruct.recommend.with_guide_spread`)
     unless it is the photometric fit and ``paired`` (its plane puts another guide's specular point on
-    the highlight the rig pairs with this one)."""
-    near = Roi.around(est.bp_px, quadric_roi_scale * max(roi.shape) / 2.0, shape)
+    the highlight the rig pairs with this one).
+
+    ``partners`` (BPs of other candidates, under separate lights) may be the other guides' lobes of one
+    curved patch: a quadric that fails on the highlight's ROI is fitted again on the ROI that holds a
+    square of the same size about each too, and kept where that fit is ok."""
+    half = quadric_roi_scale * max(roi.shape) / 2.0
+    near = Roi.around(est.bp_px, half, shape)
     status = out["photometric_fit"].status  # the plane's: which curved fits run by default
     # a misfitting patch's sigma only where the plane misfits, below what rule 4 could take
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
@@ -389,14 +401,26 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
         fits["quadric_fit"] = (quadric_fit, misfit_sigma)
     if cubic or (cubic is None and status in CURVED_FIT_AFTER and rig.has_separate_lights):  # two lobes apart
         fits["cubic_patch_fit"] = (cubic_patch_fit, bool(cubic))
-    # the plane fit's clip: values within the noise's margin of it are clipped pixels read low
-    margin = _clip_margin(gray[near.slices], saturation_level) if fits else None
-    clip = saturation_level if margin is None else saturation_level - margin
     for name, (fit, sigma) in fits.items():
-        out[name] = _guarded(name, fit, gray[near.slices], (near.col0, near.row0), est.bp_px, camera, rig,
-                             clip_level=clip, nominal_depth_mm=nominal_depth_mm, misfit_sigma=sigma)
+        out[name] = _curved_fit(name, fit, gray, near, est, camera, rig, saturation_level, nominal_depth_mm, sigma)
+        if name == "quadric_fit" and not out[name].ok and len(partners):
+            # the other guides' lobes of a curved patch, which the highlight's ROI cuts: fitted together
+            wide = _roi_union(near, *(Roi.around(uv, half, shape) for uv in partners))
+            again = _curved_fit(name, fit, gray, wide, est, camera, rig, saturation_level, nominal_depth_mm, sigma)
+            if again.ok:
+                out[name] = _la.plane._note(again, f"fitted on the ROI that holds the {len(partners)} other "
+                                                   f"candidate(s) beside it ({wide.shape[1]} x {wide.shape[0]} px)")
     for name, r in out.items():
         out[name] = released(r, paired and name == "photometric_fit")
+
+
+def _curved_fit(name, fit, gray, at: Roi, est, camera, rig, saturation_level, nominal_depth_mm, misfit_sigma):
+    """One curved-patch fit of ``est`` on the ROI ``at``, guarded; its clip the plane fit's, less the noise's
+    margin (values within it are clipped pixels read low)."""
+    margin = _clip_margin(gray[at.slices], saturation_level)
+    clip = saturation_level if margin is None else saturation_level - margin
+    return _guarded(name, fit, gray[at.slices], (at.col0, at.row0), est.bp_px, camera, rig, clip_level=clip,
+                    nominal_depth_mm=nominal_depth_mm, misfit_sigma=misfit_sigma)
 
 
 def colour_fit_applies(image, response) -> bool:
@@ -512,6 +536,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     for i, starts in zip(todo, pair_starts(camera, rig.positions, bps, bps)):
         if starts:
             jobs[i] = dict(jobs[i], pair_starts=starts)
+    if rig.has_separate_lights:
+        _add_lobe_partners(out, todo, jobs, kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE))
     # the others get no fits ({}): under a rig off the camera centre rule 1 recommends the BP ray
     skipped = set(range(len(out))).difference(todo)
     for i in sorted(skipped):
@@ -537,6 +563,24 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
             if on_highlight is not None:
                 on_highlight(done, len(todo))
     return out
+
+
+def _add_lobe_partners(out: list, todo: list, jobs: dict, roi_scale: float) -> None:
+    """Each curve-fitted job of ``todo`` given ``lobe_partners``: the BPs of the other candidates (but those
+    :data:`NOT_FITTED`) whose ROI meets its grown ROI (``roi_scale`` times its ROI's half-size about its BP)."""
+    use = [k for k, e in enumerate(out) if getattr(e, "bp_px", None) is not None and e.status not in NOT_FITTED]
+    if len(use) < 2:
+        return
+    bps = np.array([out[k].bp_px for k in use], np.float64).reshape(-1, 2)
+    rois = np.array([[int(v) for v in out[k].roi] for k in use], np.float64).reshape(-1, 4)  # row0, row1, col0, col1
+    for i in todo:
+        if jobs[i] is PLANE_ONLY or i not in use:
+            continue
+        (u, v), reach = out[i].bp_px, roi_scale * max(Roi(*(int(x) for x in out[i].roi)).shape) / 2.0
+        meets = ((rois[:, 0] < v + reach) & (rois[:, 1] > v - reach) & (rois[:, 2] < u + reach)
+                 & (rois[:, 3] > u - reach) & (np.array(use) != i))
+        if meets.any():
+            jobs[i] = dict(jobs[i], lobe_partners=tuple(map(tuple, bps[meets])))
 
 
 #: A worker's image, camera, rig and arguments of :func:`with_light_aware` (:func:`_fit_context`).

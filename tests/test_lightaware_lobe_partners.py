@@ -1,0 +1,92 @@
+"""A curved patch's two guides' lobes detected apart: the quadric fitted on the ROI that holds both.
+
+The exact image of the lightaware-curved suite's cylinder case under two guides 16.5 mm either side
+of the lens (epsilon/d 0.3, the suite's camera): the lobes part into two ``ok`` candidates 37 px apart,
+the plane fit misfits both, and the quadric on one highlight's own ROI (which cuts the other lobe)
+misfits too. Fitted again on the ROI that holds the other candidate, it gives each guide's normal at
+its own specular point.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+from scipy.optimize import minimize
+
+from simtest.geometry import angle_between_deg
+from simtest.geometry.angles import unit
+from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct import lightaware as la
+from simtest.reconstruct._pixels import Roi
+from simtest.reconstruct.light_fits import with_light_aware
+from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.settings import ReconSettings
+from _quadrics import phong_cylinder_image
+
+F_PX = 119.17535925942101  # the suite's 200 x 200 px camera, 80 deg field of view
+K = np.array([[F_PX, 0.0, 99.5], [0.0, F_PX, 99.5], [0.0, 0.0, 1.0]])
+AXIS_POINT, AXIS, RADIUS = np.array([0.0, 5.0, 70.0]), unit(np.array([1.0, 0.3, 0.2])), 15.0  # scenes/cylinder.toml
+LIGHTS = ((-16.5, 0.0, 0.0), (16.5, 0.0, 0.0))
+
+#: The quadric's z^2 term is exact on a sphere and an approximation on a cylinder (k2 = 0): each
+#: guide's normal measured 0.031 and 0.026 deg off; the bound leaves three times that and is 90
+#: times below the BP ray's error here (8.9 deg).
+CYLINDER_QUADRIC_DEG = 0.1
+
+
+@functools.lru_cache(maxsize=1)
+def _case():
+    img = sum(phong_cylinder_image(K, (200, 200), AXIS_POINT, AXIS, RADIUS, 60.0, light_mm=L) for L in LIGHTS)
+    img = img / img.max() * 200.0  # unclipped
+    img.setflags(write=False)
+    rig = LightRig(tuple(Light(L, 1.0, "none") for L in LIGHTS))
+    return img, rig, reconstruct(img, K, settings=ReconSettings.for_frames())
+
+
+def _specular_normal(L) -> np.ndarray:
+    """Guide ``L``'s specular point's normal on the cylinder: where the normal bisects the directions to
+    the camera and the light (a search over the surface, independent of the fits' patch model)."""
+    u = unit(np.cross(AXIS, [0.0, 0.0, 1.0]))
+    v = np.cross(AXIS, u)
+
+    def gap(p):
+        n = np.cos(p[0]) * u + np.sin(p[0]) * v
+        x = AXIS_POINT + p[1] * AXIS + RADIUS * n
+        return float(np.sum((n - unit(unit(-x) + unit(np.asarray(L) - x))) ** 2))
+
+    best = min((minimize(gap, [th, t], method="Nelder-Mead", options={"xatol": 1e-12, "fatol": 1e-20, "maxiter": 20000})
+                for th in np.linspace(0.0, 2 * np.pi, 12, endpoint=False) for t in (-20.0, 0.0, 20.0)),
+               key=lambda r: r.fun)
+    assert best.fun < 1e-20
+    return np.cos(best.x[0]) * u + np.sin(best.x[0]) * v
+
+
+def test_a_curved_patchs_lobes_apart_give_each_guide_its_normal_from_one_quadric():
+    img, rig, ests = _case()
+    fitted = with_light_aware(img, ests, K, rig, nominal_depth_mm=20.0)
+    ok = [e for e in fitted if e.ok]
+    assert len(ok) == 2 and np.linalg.norm(np.subtract(ok[0].bp_px, ok[1].bp_px)) > 30.0
+    quadrics = [e.light_aware.get("quadric_fit") for e in ok]
+    rescued = [e for e, q in zip(ok, quadrics) if q is not None and "ROI that holds the 1 other" in (q.detail or "")]
+    assert rescued, quadrics
+    est = rescued[0]
+    assert est.light_aware["photometric_fit"].status == "plane_misfit"
+    q = est.light_aware["quadric_fit"]
+    assert q.ok and q.light_normals.shape == (2, 3)
+    for j, L in enumerate(LIGHTS):
+        assert angle_between_deg(q.light_normals[j], _specular_normal(L)) < CYLINDER_QUADRIC_DEG
+    # on its own ROI (the quadric's: 1.5 times the detection's half-size) the other lobe is cut: a misfit
+    roi = Roi(*(int(v) for v in est.roi))
+    own = Roi.around(est.bp_px, 1.5 * max(roi.shape) / 2.0, img.shape)
+    alone = la.quadric_fit(img[own.slices], (own.col0, own.row0), est.bp_px, K, rig, nominal_depth_mm=20.0)
+    assert not alone.ok, alone
+
+
+def test_one_light_gives_no_lobe_partners():
+    # partners are other guides' lobes: under one light (or lights at one place) no candidate is one
+    img, _, ests = _case()
+    one = LightRig((Light(LIGHTS[1], 1.0, "none"),))
+    for e in with_light_aware(img, ests, K, one, nominal_depth_mm=20.0):
+        q = (e.light_aware or {}).get("quadric_fit")
+        assert q is None or "other candidate" not in (q.detail or "")
