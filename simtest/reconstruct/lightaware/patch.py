@@ -163,9 +163,8 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     log n) are fitted by Levenberg-Marquardt from a flat patch at each start depth until one ends
     plausible; under separate lights, where that ends in a misfit or runs off, again from the best
     depth of the coarse quadric profile (:func:`_coarse_profile`, on :data:`_PROFILE_PIXELS`
-    samples), the lower cost kept. Under one
-    light the depth trades with the surface's third-order shape and is not reported
-    (``depth_range_mm`` instead; :func:`cubic_patch_fit` uses two lights).
+    samples), the lower cost kept. Under one light the depth trades with the surface's third-order
+    shape and is not reported (``depth_range_mm`` instead; :func:`cubic_patch_fit` uses two lights).
 
     Parameters
     ----------
