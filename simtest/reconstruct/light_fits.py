@@ -574,7 +574,7 @@ def _add_lobe_partners(out: list, todo: list, jobs: dict, roi_scale: float) -> N
     bps = np.array([out[k].bp_px for k in use], np.float64).reshape(-1, 2)
     rois = np.array([[int(v) for v in out[k].roi] for k in use], np.float64).reshape(-1, 4)  # row0, row1, col0, col1
     for i in todo:
-        if jobs[i] is PLANE_ONLY or i not in use:
+        if jobs[i].get("quadric") is False or i not in use:  # (PLANE_ONLY's, with or without pair starts)
             continue
         (u, v), reach = out[i].bp_px, roi_scale * max(Roi(*(int(x) for x in out[i].roi)).shape) / 2.0
         meets = ((rois[:, 0] < v + reach) & (rois[:, 1] > v - reach) & (rois[:, 2] < u + reach)
