@@ -9,6 +9,7 @@ its own specular point.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -90,3 +91,31 @@ def test_one_light_gives_no_lobe_partners():
     for e in with_light_aware(img, ests, K, one, nominal_depth_mm=20.0):
         q = (e.light_aware or {}).get("quadric_fit")
         assert q is None or "other candidate" not in (q.detail or "")
+
+
+def _glints(est, shape, n: int) -> list:
+    """``n`` rejected candidates (a glint field's: ``cluster``, 5 px across) at the corners of ``est``'s
+    quadric ROI (1.5 times its detection ROI's half-size), 4 px in."""
+    roi = Roi(*(int(v) for v in est.roi))
+    near = Roi.around(est.bp_px, 1.5 * max(roi.shape) / 2.0, shape)
+    corners = [(near.col0 + 4.0, near.row0 + 4.0), (near.col1 - 5.0, near.row1 - 5.0),
+               (near.col0 + 4.0, near.row1 - 5.0), (near.col1 - 5.0, near.row0 + 4.0)]
+    return [dataclasses.replace(est, bp_px=(u, v), roi=(int(v) - 2, int(v) + 3, int(u) - 2, int(u) + 3),
+                                status="cluster") for u, v in corners[:n]]
+
+
+def test_a_roi_holding_more_peaks_than_the_rig_has_lights_is_no_quadrics_image():
+    # One smooth patch shows at most one lobe per place of the rig's lights (two here). With two
+    # other candidates inside the misfitting highlight's quadric ROI (a glint field), the default
+    # quadric does not run there; with one inside and the other lobe beside it (three peaks in the
+    # ROI the refit would take) it runs on its own ROI and misfits, and is not fitted again.
+    img, rig, ests = _case()
+    first = with_light_aware(img, ests, K, rig, nominal_depth_mm=20.0)
+    i = next(k for k, e in enumerate(first) if e.ok and "ROI that holds the 1 other"
+             in (e.light_aware.get("quadric_fit").detail or ""))  # the highlight the refit rescues
+    for n, want in ((2, None), (1, False)):
+        fitted = with_light_aware(img, list(ests) + _glints(ests[i], img.shape, n), K, rig, nominal_depth_mm=20.0)
+        la_ = fitted[i].light_aware
+        assert la_["photometric_fit"].status == "plane_misfit"
+        q = la_.get("quadric_fit")
+        assert (q is None) if want is None else (q is not None and not q.ok and "ROI that holds" not in (q.detail or ""))

@@ -377,7 +377,9 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
 
     ``partners`` (BPs of other candidates, under separate lights) may be the other guides' lobes of one
     curved patch: a quadric that fails on the highlight's ROI is fitted again on the ROI that holds a
-    square of the same size about each too, and kept where that fit is ok."""
+    square of the same size about each too, and kept where that fit is ok. A smooth patch shows at most
+    one lobe per place of the rig's lights: the default quadric does not run on a ROI holding as many
+    partners as that, nor the refit where the highlight and its partners outnumber them."""
     half = quadric_roi_scale * max(roi.shape) / 2.0
     near = Roi.around(est.bp_px, half, shape)
     status = out["photometric_fit"].status  # the plane's: which curved fits run by default
@@ -396,14 +398,17 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     if status == "plane_misfit" and not quadric:
         # the plane as rule 4 reads it
         misfit_sigma = min(90.0, _bp_ray_error_beside(est, released(out["photometric_fit"])) / SIGMA_MARGIN)
+    # a smooth patch shows a lobe per place of the rig's lights: a ROI with more peaks (glints) is no quadric's
+    lobes, bps = len(np.unique(rig.positions, axis=0)), np.asarray(partners, dtype=np.float64).reshape(-1, 2)
+    inside = np.count_nonzero(np.all((bps >= (near.col0, near.row0)) & (bps < (near.col1, near.row1)), axis=1))
     fits = {}
-    if quadric or (quadric is None and status in QUADRIC_AFTER):
+    if quadric or (quadric is None and status in QUADRIC_AFTER and inside < lobes):
         fits["quadric_fit"] = (quadric_fit, misfit_sigma)
     if cubic or (cubic is None and status in CURVED_FIT_AFTER and rig.has_separate_lights):  # two lobes apart
         fits["cubic_patch_fit"] = (cubic_patch_fit, bool(cubic))
     for name, (fit, sigma) in fits.items():
         out[name] = _curved_fit(name, fit, gray, near, est, camera, rig, saturation_level, nominal_depth_mm, sigma)
-        if name == "quadric_fit" and not out[name].ok and len(partners):
+        if name == "quadric_fit" and not out[name].ok and 0 < len(bps) < lobes:
             # the other guides' lobes of a curved patch, which the highlight's ROI cuts: fitted together
             wide = _roi_union(near, *(Roi.around(uv, half, shape) for uv in partners))
             again = _curved_fit(name, fit, gray, wide, est, camera, rig, saturation_level, nominal_depth_mm, sigma)
