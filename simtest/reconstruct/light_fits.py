@@ -401,8 +401,9 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     # a smooth patch shows a lobe per place of the rig's lights: a ROI with more peaks (glints) is no quadric's
     lobes, bps = len(np.unique(rig.positions, axis=0)), np.asarray(partners, dtype=np.float64).reshape(-1, 2)
     inside = np.count_nonzero(np.all((bps >= (near.col0, near.row0)) & (bps < (near.col1, near.row1)), axis=1))
+    ran_off = status == "not_converged" and 0 < len(bps) < lobes  # beside other guides' lobes: fitted with them
     fits = {}
-    if quadric or (quadric is None and status in QUADRIC_AFTER and inside < lobes):
+    if quadric or (quadric is None and (status in QUADRIC_AFTER or ran_off) and inside < lobes):
         fits["quadric_fit"] = (quadric_fit, misfit_sigma)
     if cubic or (cubic is None and status in CURVED_FIT_AFTER and rig.has_separate_lights):  # two lobes apart
         fits["cubic_patch_fit"] = (cubic_patch_fit, bool(cubic))

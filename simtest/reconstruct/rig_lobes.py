@@ -53,7 +53,7 @@ from simtest.reconstruct.light_fits import NOT_FITTED, PLANE_ONLY, _offset_rig, 
 from simtest.reconstruct.lightaware import LightAwareEstimate
 from simtest.reconstruct.recommend import without_guide_spread
 from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wander_px, guide_specular_points,
-                                           other_guide_curves, pair_plane)
+                                           other_guide_curves, pair_plane, patch_specular_points)
 
 __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "partner_rows", "split_fused_lobes",
            "splittable"]
@@ -529,6 +529,28 @@ def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarra
     return None
 
 
+def _quadric_partners(out: list, a: int, bps: np.ndarray, wander: np.ndarray, camera, rig, gray) -> None:
+    """Each rejected candidate at another guide's specular point of row ``a``'s quadric fit (one patch holding
+    every guide's lobe) made that guide's row with the same fit, where the fit puts its own guide's point on
+    row ``a``'s BP (:func:`partner_rows`; ``out`` and ``bps`` updated)."""
+    q = out[a].light_aware["quadric_fit"]
+    if q.light_normals is None or q.light_depths_mm is None:
+        return
+    pts = patch_specular_points(camera, rig, q.light_normals, q.light_depths_mm)
+    own = np.nan_to_num(np.linalg.norm(pts - bps[a], axis=1), nan=np.inf)
+    i = int(np.argmin(own))
+    if not own[i] <= PAIR_TOL_PX + wander[a]:
+        return  # its fit does not place its own highlight
+    for j in range(len(pts)):
+        found = None if j == i or not np.isfinite(pts[j]).all() else _partner(out, bps, wander, pts[j], gray)
+        if found is not None and found[1] is None:  # (a candidate whose BP lies there, not a bare region)
+            c = found[0]
+            out[c] = _row(out[c], camera, pts[j], f"guide {j + 1}'s highlight where guide {i + 1}'s quadric puts it",
+                          "BP at its specular point, normals from that quadric fit (one patch, both lobes)",
+                          light_aware=out[a].light_aware)
+            bps[c] = pts[j]
+
+
 def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) -> list:
     """The estimates with each rejected candidate where an ok row's plane fit puts another guide's highlight
     made that guide's row, where its own plane fit puts the row's highlight back (module docstring).
@@ -560,6 +582,9 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) 
     wander = np.array([estimate_wander_px(e) for e in out])
     for a, est in enumerate(estimates):
         fit = (est.light_aware or {}).get("photometric_fit")
+        if est.ok and est.recommended.normal_from == "quadric_fit":
+            gray = luma(np.asarray(image)) if gray is None else gray
+            _quadric_partners(out, a, bps, wander, camera, rig, gray)
         if not (est.ok and est.recommended.normal_from == "photometric_fit" and _plane(fit)):
             continue
         pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)

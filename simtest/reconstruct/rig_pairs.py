@@ -28,8 +28,8 @@ from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.evidence_pixels import ellipse_level
 from simtest.reconstruct.isophote import polygon_contains
 
-__all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves",
-           "guide_specular_points", "other_lobe_centres", "pair_plane", "pair_partners", "pair_starts",
+__all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves", "pair_starts",
+           "guide_specular_points", "patch_specular_points", "other_lobe_centres", "pair_plane", "pair_partners",
            "encloses_only_partners", "bp_wander_px", "estimate_wander_px", "rig_twins"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
@@ -419,6 +419,47 @@ def guide_specular_points(camera, rig, normal, distance_mm: float) -> np.ndarray
         (u, v) px per light, in the rig's order; NaN for a light behind the plane.
     """
     return _specular_points(camera, rig, normal, np.array([float(distance_mm)]))[0]
+
+
+def patch_specular_points(camera, rig, light_normals, light_depths_mm) -> np.ndarray:
+    """Image points of each guide's specular point on a curved patch, from the patch's normal there and
+    the point's depth (a quadric fit's ``light_normals`` and ``light_depths_mm``).
+
+    The plane tangent to the patch at guide j's specular point has that point as its own specular point
+    for guide j (the mirror condition reads only the point and its normal): its distance h is where the
+    plane's point (module docstring) lies at the depth d, ``h^2 (|L|^2 + 4 h (n . L + h)) = d^2 (n . L +
+    2 h)^2``, solved by Brent's method between the light's plane and ``2 (d + |L|)`` (the depth exceeds h
+    by ``O(|L|^2 / h)``), for a point farther from the camera than the light (nearer, two planes may put
+    it at that depth).
+
+    Parameters
+    ----------
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a model with ``ray_to_pixel``.
+    rig : LightRig
+        The scope's lights, camera frame, mm.
+    light_normals : array_like of shape (J, 3)
+        Unit normals at each guide's specular point, facing the camera, camera frame.
+    light_depths_mm : array_like of shape (J,)
+        Those points' distances from the camera centre, mm.
+
+    Returns
+    -------
+    ndarray of shape (J, 2)
+        (u, v) px per guide, in the rig's order; NaN where a normal or depth is not finite, the depth is not
+        beyond the light's distance, or no plane facing the light puts its point there.
+    """
+    brentq = require("scipy.optimize").brentq
+    L = np.asarray(rig.positions, dtype=np.float64).reshape(-1, 3)
+    out = np.full((len(L), 2), np.nan)
+    for j, (n, d) in enumerate(zip(np.asarray(light_normals, np.float64).reshape(-1, 3),
+                                   np.asarray(light_depths_mm, np.float64).reshape(-1))):
+        a = float(n @ L[j])
+        gap = lambda h, a=a, j=j, d=d: h * np.sqrt(L[j] @ L[j] + 4.0 * h * (a + h)) - d * (a + 2.0 * h)  # noqa: E731
+        lo, hi = max(-a, 0.0) + 1e-9 * d, 2.0 * (d + np.linalg.norm(L[j]))  # (h > 0 and n . L + h > 0)
+        if np.isfinite(n).all() and d > np.linalg.norm(L[j]) and gap(lo) < 0.0 < gap(hi):
+            out[j] = _specular_points(camera, rig, n, np.array([brentq(gap, lo, hi, xtol=1e-12)]))[0, j]
+    return out
 
 
 def _specular_points(camera, rig, normal, h: np.ndarray) -> np.ndarray:
