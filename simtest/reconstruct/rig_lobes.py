@@ -28,6 +28,8 @@ on a rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander) mak
 row where the candidate's own plane fit puts both points back: a weak lobe whose isophote the other's tail deforms.
 A candidate with no closed isophote to measure its BP's wander (a lobe the frame cuts; a pale one, ``not_specular``;
 a weak one whose core is ``too_small``) is the other guide's where its bright region holds that point, its fit's too.
+An ok row whose recommended quadric (one curved patch fitted to every guide's lobe) puts its own guide's specular
+point on its BP makes the rejected candidate whose BP lies at another guide's point that guide's row, from the same fit.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each of at least
 :data:`~simtest.decisions.MIN_AREA_PX`) where the rig pairs them gives one row per top at its centroid, with the plane
