@@ -531,6 +531,13 @@ def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarra
     return None
 
 
+def _own_guide(pts: np.ndarray, bp, reach: float) -> int | None:
+    """The guide whose point of ``pts`` (J, 2) lies nearest ``bp``, where within ``reach`` px; else None."""
+    own = np.nan_to_num(np.linalg.norm(pts - np.asarray(bp, np.float64), axis=1), nan=np.inf)
+    i = int(np.argmin(own))
+    return i if own[i] <= reach else None
+
+
 def _quadric_partners(out: list, a: int, bps: np.ndarray, wander: np.ndarray, camera, rig, gray) -> None:
     """Each rejected candidate at another guide's specular point of row ``a``'s quadric fit (one patch holding
     every guide's lobe) made that guide's row with the same fit, where the fit puts its own guide's point on
@@ -539,9 +546,8 @@ def _quadric_partners(out: list, a: int, bps: np.ndarray, wander: np.ndarray, ca
     if q.light_normals is None or q.light_depths_mm is None:
         return
     pts = patch_specular_points(camera, rig, q.light_normals, q.light_depths_mm)
-    own = np.nan_to_num(np.linalg.norm(pts - bps[a], axis=1), nan=np.inf)
-    i = int(np.argmin(own))
-    if not own[i] <= PAIR_TOL_PX + wander[a]:
+    i = _own_guide(pts, bps[a], PAIR_TOL_PX + wander[a])
+    if i is None:
         return  # its fit does not place its own highlight
     for j in range(len(pts)):
         found = None if j == i or not np.isfinite(pts[j]).all() else _partner(out, bps, wander, pts[j], gray)
@@ -590,9 +596,8 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) 
         if not (est.ok and est.recommended.normal_from == "photometric_fit" and _plane(fit)):
             continue
         pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
-        own = np.nan_to_num(np.linalg.norm(pts - bps[a], axis=1), nan=np.inf)
-        i = int(np.argmin(own))
-        if not own[i] <= PAIR_TOL_PX + wander[a]:
+        i = _own_guide(pts, bps[a], PAIR_TOL_PX + wander[a])
+        if i is None:
             continue  # its fit does not place its own highlight
         for j in range(len(pts)):
             gray = luma(np.asarray(image)) if gray is None and j != i else gray
