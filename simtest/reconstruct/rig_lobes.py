@@ -589,11 +589,11 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) 
     bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
     wander = np.array([estimate_wander_px(e) for e in out])
     for a, est in enumerate(estimates):
-        fit = (est.light_aware or {}).get("photometric_fit")
-        if est.ok and est.recommended.normal_from == "quadric_fit":
+        fit, source = (est.light_aware or {}).get("photometric_fit"), est.recommended.normal_from if est.ok else None
+        if source == "quadric_fit":
             gray = luma(np.asarray(image)) if gray is None else gray
             _quadric_partners(out, a, bps, wander, camera, rig, gray)
-        if not (est.ok and est.recommended.normal_from == "photometric_fit" and _plane(fit)):
+        if not (source == "photometric_fit" and _plane(fit)):
             continue
         pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
         i = _own_guide(pts, bps[a], PAIR_TOL_PX + wander[a])
