@@ -375,11 +375,12 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     unless it is the photometric fit and ``paired`` (its plane puts another guide's specular point on
     the highlight the rig pairs with this one).
 
-    ``partners`` (BPs of other candidates, under separate lights) may be the other guides' lobes of one
-    curved patch: a quadric that fails on the highlight's ROI is fitted again on the ROI that holds a
-    square of the same size about each too, and kept where that fit is ok. A smooth patch shows at most
-    one lobe per place of the rig's lights: the default quadric does not run on a ROI holding as many
-    partners as that, nor the refit where the highlight and its partners outnumber them."""
+    ``partners`` (BPs of other candidates, under separate lights) may be the other guides' lobes of one curved
+    patch: a quadric that fails on the highlight's ROI is fitted again on the ROI that holds a square of the same
+    size about each too, and kept where that fit is ok. A smooth patch shows at most one lobe per place of the
+    rig's lights: the default quadric does not run on a ROI holding as many partners as that, nor the refit where
+    the highlight and its partners outnumber them. Under separate lights it also runs where the plane ran off
+    beside fewer (none: the guides' lobes fused into the one candidate; one: another guide's lobe)."""
     half = quadric_roi_scale * max(roi.shape) / 2.0
     near = Roi.around(est.bp_px, half, shape)
     status = out["photometric_fit"].status  # the plane's: which curved fits run by default
@@ -401,7 +402,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     # a smooth patch shows a lobe per place of the rig's lights: a ROI with more peaks (glints) is no quadric's
     lobes, bps = len(np.unique(rig.positions, axis=0)), np.asarray(partners, dtype=np.float64).reshape(-1, 2)
     inside = np.count_nonzero(np.all((bps >= (near.col0, near.row0)) & (bps < (near.col1, near.row1)), axis=1))
-    ran_off = status == "not_converged" and 0 < len(bps) < lobes  # beside other guides' lobes: fitted with them
+    ran_off = status == "not_converged" and rig.has_separate_lights and len(bps) < lobes  # (docstring)
     fits = {}
     if quadric or (quadric is None and (status in QUADRIC_AFTER or ran_off) and inside < lobes):
         fits["quadric_fit"] = (quadric_fit, misfit_sigma)
