@@ -345,7 +345,9 @@ def test_the_patch_fits_run_only_where_the_plane_is_not_the_surface(monkeypatch,
     # the photometric fit's status stands in for what each outcome of a real fit says; the
     # quadric (and, with two lights apart, the cubic patch) run after a misfit or a fit that ran
     # off, never after a fit whose plane fits (a patch has more parameters to trade with the
-    # depth) or one with too few pixels for the plane's parameters (fewer than a patch's)
+    # depth) or one with too few pixels for the plane's parameters (fewer than a patch's). After
+    # a fit that ran off the quadric runs only beside fewer other candidates than the rig has
+    # light places (alone here: the guides' lobes fused in one), not in a glint field
     import simtest.reconstruct.light_fits as rec
 
     img, K, N, _, _ = _plane8(30.0, 20.0, 2.0)
@@ -363,9 +365,14 @@ def test_the_patch_fits_run_only_where_the_plane_is_not_the_surface(monkeypatch,
         monkeypatch.setattr(rec, name, lambda *a, _n=name, **k: ran.append(_n) or
                             rec.LightAwareEstimate(_n, "not_converged", "not run here"))
     out = light_aware_estimates(img, est, K, rig, cubic=None)
-    expected = ((["quadric_fit"] if status in rec.QUADRIC_AFTER else [])
+    expected = ((["quadric_fit"] if status in rec.QUADRIC_AFTER or status == "not_converged" else [])
                 + (["cubic_patch_fit"] if status in rec.CURVED_FIT_AFTER else []))
     assert ran == expected and [k for k in out if k in ran] == expected
+    # two other peaks beside it (as many as the rig has light places): no quadric's image
+    ran.clear()
+    u, v = est.bp_px
+    light_aware_estimates(img, est, K, rig, cubic=None, lobe_partners=((u + 3.0, v), (u - 3.0, v)))
+    assert "quadric_fit" not in ran
     # asked for, they run whatever the plane's status
     ran.clear()
     light_aware_estimates(img, est, K, rig, quadric=True, cubic=True)
