@@ -379,6 +379,31 @@ def test_the_patch_fits_run_only_where_the_plane_is_not_the_surface(monkeypatch,
     assert ran == ["quadric_fit", "cubic_patch_fit"]
 
 
+@pytest.mark.parametrize("peaks, refitted", [(1, True), (2, False)])
+def test_a_glint_field_is_not_refitted_from_the_pair(monkeypatch, peaks, refitted):
+    # a plane under k lights shows at most k lobes: where the highlight's ROI holds as many other peaks as
+    # the rig has light places (a glint field on wet tissue) no plane's image is there, and its fit is not
+    # refitted from the pair's depth nor on the pair's ROI; beside fewer (another guide's lobe) it is
+    import simtest.reconstruct.light_fits as rec
+
+    img, K, _, _, _ = _plane8(30.0, 20.0, 2.0)
+    rig = LightRig((Light((-2.0, 0.0, 0.0), 1.0, "inverse_square", 0.0),
+                    Light((2.0, 0.0, 0.0), 1.0, "inverse_square", 0.0)))
+    est = _highlight(img, K)
+    real, with_pair = rec.photometric_fit, []
+
+    def fit(*a, **k):  # a depth-less plane fit, which the pair's depth may complete
+        with_pair.append(bool(k.get("pair_starts")))
+        return dataclasses.replace(real(*a, **k), status="depth_not_observable")
+
+    monkeypatch.setattr(rec, "photometric_fit", fit)
+    u, v = est.bp_px
+    partners = ((u + 3.0, v), (u - 3.0, v))[:peaks]
+    light_aware_estimates(img, est, K, rig, pair_starts=((0, 1, 25.0),), lobe_partners=partners, quadric=False,
+                          cubic=False)
+    assert any(with_pair) == refitted, with_pair
+
+
 # --- rule 1 for the candidates the light-aware step does not fit ------------------------------------
 
 def test_a_rejected_candidate_under_an_offset_rig_gets_the_bp_ray():

@@ -92,13 +92,14 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         Refit without the pixels whose model lies within a few noise sigmas of an integer image's 0.
     pair_starts : tuple of (int, int, float)
         Guides and depth at which the rig puts another guide's highlight on another highlight
-        (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a fit with a normal (ok, or without the
-        depth, which the pair may give) that misplaces it, or one that ran off (``_RAN_OFF``: on its ROI
-        alone), is refitted from there too, then on the ROI that holds both highlights (:func:`_pair_roi`),
-        a refit kept where it is ok and places it; a fit (a depth-less one at the pair's depth) still off
-        the partner by more than the lobe's size becomes ``guide_misfit`` (one guide's lobe alone hardly
-        tells which guide lit it), as does any plane fit that puts another guide's lobe in the frame
-        where the image shows none (:func:`_unseen_guide`).
+        (:func:`~simtest.reconstruct.rig_pairs.pair_starts`): a fit with a normal (ok, or without the depth,
+        which the pair may give) that misplaces it, or one that ran off (``_RAN_OFF``: on its ROI alone), is
+        refitted from there too, then on the ROI that holds both highlights (:func:`_pair_roi`), a refit kept
+        where it is ok and places it (none where the ROI holds as many ``lobe_partners`` as the rig has light
+        places: a glint field); a fit (a depth-less one at the pair's depth) still off the partner by more
+        than the lobe's size becomes ``guide_misfit`` (one guide's lobe alone hardly tells which guide lit
+        it), as does any plane fit that puts another guide's lobe in the frame where the image shows none
+        (:func:`_unseen_guide`).
     lobe_partners : sequence of (float, float)
         BPs (u, v), px, of the other candidates whose ROI meets the grown one (:func:`with_light_aware`).
         Under separate lights they may be the other guides' lobes of one curved patch: a quadric fit that
@@ -142,13 +143,17 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     # the other guide's highlight seen where the fit's plane puts it: the image tells the guides apart
     paired = bool(pair_starts) and _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)
     ran_off = pf.status in _RAN_OFF
+    # a plane shows a lobe per place of the rig's lights: a ROI holding as many other peaks is a glint field
+    glints = rig.has_separate_lights and _peaks_in(lobe_partners, big) >= len(np.unique(rig.positions, axis=0))
     if pair_starts and (pf.ok or pf.status == "depth_not_observable" or ran_off) and not paired:
         # the other guide's highlight, which the ROI's fit did not see: refitted from the pair's depth too
-        alt = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
-                           dict(pkw, pair_starts=tuple(pair_starts)))
-        if alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
+        # (not in a glint field, no plane's image)
+        alt = None if glints else _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
+                                               dict(pkw, pair_starts=tuple(pair_starts)))
+        if alt is not None and alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
             pf = _la.plane._note(alt, "refitted from the depth its pair with another guide's highlight gives")
-        elif not ran_off and (span := _pair_roi(big, est.bp_px, camera, rig, pair_starts, img.shape)) is not None:
+        elif alt is not None and not ran_off and (span := _pair_roi(big, est.bp_px, camera, rig, pair_starts,
+                                                                    img.shape)) is not None:
             # one guide's lobe alone leaves which guide lit it to the fit: the swapped guide at another
             # depth images nearly the same lobe. The other guide's highlight, in the ROI, tells them apart
             joint = _photometric(img, gray, span, est, camera, rig, response, colour, saturation_level,
@@ -190,6 +195,12 @@ def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
     partners = pair_partners(camera, rig, bp_uv, starts)
     boxes = [Roi.around(uv, half, shape) for uv in partners[_in_frame(partners, shape)]]
     return _roi_union(big, *boxes) if boxes else None
+
+
+def _peaks_in(bps, roi: Roi) -> int:
+    """How many of the points ``bps`` ((k, 2) (u, v), px) lie in ``roi``."""
+    bps = np.asarray(bps, dtype=np.float64).reshape(-1, 2)
+    return int(np.count_nonzero(np.all((bps >= (roi.col0, roi.row0)) & (bps < (roi.col1, roi.row1)), axis=1)))
 
 
 def _roi_union(*rois: Roi) -> Roi:
@@ -401,7 +412,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
         misfit_sigma = min(90.0, _bp_ray_error_beside(est, released(out["photometric_fit"])) / SIGMA_MARGIN)
     # a smooth patch shows a lobe per place of the rig's lights: a ROI with more peaks (glints) is no quadric's
     lobes, bps = len(np.unique(rig.positions, axis=0)), np.asarray(partners, dtype=np.float64).reshape(-1, 2)
-    inside = np.count_nonzero(np.all((bps >= (near.col0, near.row0)) & (bps < (near.col1, near.row1)), axis=1))
+    inside = _peaks_in(bps, near)
     ran_off = status == "not_converged" and rig.has_separate_lights and len(bps) < lobes  # (docstring)
     fits = {}
     if quadric or (quadric is None and (status in QUADRIC_AFTER or ran_off) and inside < lobes):
