@@ -149,9 +149,14 @@ class LightRig:
         return all(light.position_mm == (0.0, 0.0, 0.0) for light in self.lights)
 
     @property
+    def light_places(self) -> int:
+        """How many different places the lights sit at (a smooth patch shows at most one lobe per place)."""
+        return len({light.position_mm for light in self.lights})
+
+    @property
     def has_separate_lights(self) -> bool:
         """True when at least two lights sit at different places."""
-        return len({light.position_mm for light in self.lights}) >= 2
+        return self.light_places >= 2
 
     @property
     def positions(self) -> np.ndarray:

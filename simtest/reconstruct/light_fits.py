@@ -143,24 +143,22 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     # the other guide's highlight seen where the fit's plane puts it: the image tells the guides apart
     paired = bool(pair_starts) and _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)
     ran_off = pf.status in _RAN_OFF
-    # a plane shows a lobe per place of the rig's lights: a ROI holding as many other peaks is a glint field
-    glints = rig.has_separate_lights and _peaks_in(lobe_partners, big) >= len(np.unique(rig.positions, axis=0))
     if pair_starts and (pf.ok or pf.status == "depth_not_observable" or ran_off) and not paired:
-        # the other guide's highlight, which the ROI's fit did not see: refitted from the pair's depth too
-        # (not in a glint field, no plane's image)
-        alt = None if glints else _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
-                                               dict(pkw, pair_starts=tuple(pair_starts)))
-        if alt is not None and alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
-            pf = _la.plane._note(alt, "refitted from the depth its pair with another guide's highlight gives")
-        elif alt is not None and not ran_off and (span := _pair_roi(big, est.bp_px, camera, rig, pair_starts,
-                                                                    img.shape)) is not None:
-            # one guide's lobe alone leaves which guide lit it to the fit: the swapped guide at another
-            # depth images nearly the same lobe. The other guide's highlight, in the ROI, tells them apart
-            joint = _photometric(img, gray, span, est, camera, rig, response, colour, saturation_level,
-                                 dict(pkw, pair_starts=tuple(pair_starts)))
-            if joint.ok and _fits_the_pair(joint, est.bp_px, camera, rig, pair_starts):
-                pf = _la.plane._note(joint, f"refitted on the ROI that holds its pair with another guide's "
-                                            f"highlight ({span.shape[1]} x {span.shape[0]} px)")
+        # the other guide's highlight, which the ROI's fit did not see: refitted from the pair's depth too,
+        # but not in a glint field (a plane shows a lobe per place of the rig's lights: no plane's image)
+        if not (rig.has_separate_lights and _peaks_in(lobe_partners, big) >= rig.light_places):
+            alt = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
+                               dict(pkw, pair_starts=tuple(pair_starts)))
+            if alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
+                pf = _la.plane._note(alt, "refitted from the depth its pair with another guide's highlight gives")
+            elif not ran_off and (span := _pair_roi(big, est.bp_px, camera, rig, pair_starts, img.shape)) is not None:
+                # one guide's lobe alone leaves which guide lit it to the fit: the swapped guide at another
+                # depth images nearly the same lobe. The other guide's highlight, in the ROI, tells them apart
+                joint = _photometric(img, gray, span, est, camera, rig, response, colour, saturation_level,
+                                     dict(pkw, pair_starts=tuple(pair_starts)))
+                if joint.ok and _fits_the_pair(joint, est.bp_px, camera, rig, pair_starts):
+                    pf = _la.plane._note(joint, f"refitted on the ROI that holds its pair with another guide's "
+                                                f"highlight ({span.shape[1]} x {span.shape[0]} px)")
         # the plane (a depth-less fit's normal: at the pair's depth) off the partner's lobe, farther than a
         # BP's wander off its specular point: the lobe's size, its isophote's (both guides' lobes on one
         # plane image alike) or the detection's where none closed
@@ -411,7 +409,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
         # the plane as rule 4 reads it
         misfit_sigma = min(90.0, _bp_ray_error_beside(est, released(out["photometric_fit"])) / SIGMA_MARGIN)
     # a smooth patch shows a lobe per place of the rig's lights: a ROI with more peaks (glints) is no quadric's
-    lobes, bps = len(np.unique(rig.positions, axis=0)), np.asarray(partners, dtype=np.float64).reshape(-1, 2)
+    lobes, bps = rig.light_places, np.asarray(partners, dtype=np.float64).reshape(-1, 2)
     inside = _peaks_in(bps, near)
     ran_off = status == "not_converged" and rig.has_separate_lights and len(bps) < lobes  # (docstring)
     fits = {}
