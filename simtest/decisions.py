@@ -395,17 +395,15 @@ PANEL_STD_REL = decision(
     basis="physics", stage=_V)
 PANEL_MIN_AREA = decision(
     "PANEL_MIN_AREA", 0.005, "fraction of the frame's pixels",
-    "Smallest flat panel: a box or the scope's surround, not a smooth patch of tissue.",
-    basis="convention", stage=_V)
+    "Smallest flat panel: a box or the scope's surround, not a smooth patch of tissue.", basis="convention", stage=_V)
 PANEL_FRACTION_MAX = decision(
     "PANEL_FRACTION_MAX", 0.1, "fraction of the isophote region's pixels",
     "Largest share of panel pixels in a candidate's isophote region before it is an overlay.",
     basis="convention", stage=_V)
 NEIGHBOUR_REL = decision(
     "NEIGHBOUR_REL", 0.7, "fraction of the peak's top-hat height",
-    "A neighbouring specular peak counts toward 'cluster' from this fraction of the peak's "
-    "height: it then reaches into the primary isophote's level and bends its contour.",
-    basis="physics", stage=_V)
+    "A neighbouring specular peak counts toward 'cluster' from this fraction of the peak's height: it then "
+    "reaches into the primary isophote's level and bends its contour.", basis="physics", stage=_V)
 NEIGHBOUR_AREA_REL = decision(
     "NEIGHBOUR_AREA_REL", 0.1, "fraction of the candidate's own area",
     "... with at least this much area above the valley level (a glint of comparable size; the "
@@ -423,12 +421,10 @@ NEIGHBOUR_REACH = decision(
     "... within this reach: at t = 0.7 of a Phong lobe the t = 0.1 isophote that bounds the "
     "region the method contours is about 2.8 times wider.", basis="physics", stage=_V)
 OWN_RADIUS_PX = decision(
-    "OWN_RADIUS_PX", 2.0, "px", "... plus this margin, the smoothing's blur.",
-    basis="physics", stage=_V)
+    "OWN_RADIUS_PX", 2.0, "px", "... plus this margin, the smoothing's blur.", basis="physics", stage=_V)
 SURROUND_REL = decision(
     "SURROUND_REL", 0.5, "fraction of the peak's top-hat height",
-    "The surround's light is counted from this fraction of the peak's height.",
-    basis="convention", stage=_V)
+    "The surround's light is counted from this fraction of the peak's height.", basis="convention", stage=_V)
 OWN_REL = decision(
     "OWN_REL", 0.2, "fraction of the highlight's own height",
     "The surround starts where the highlight's own lobe falls below this level (its primary "
@@ -440,30 +436,26 @@ SURROUND_FRACTION_MAX = decision(
     "or a glint on a sheen.", basis="convention", stage=_V)
 RESIDUAL_MAX_REL = decision(
     "RESIDUAL_MAX_REL", 0.3, "RMS isophote residual over the semi-minor axis",
-    "Nested ellipses: an isophote whose points stray by 30 % of its minor axis is no ellipse "
-    "(two lobes, a streak, texture).",
-    basis="physics", stage=_V)
+    "Nested ellipses: an isophote whose points stray by 30 % of its minor axis is no ellipse (two lobes, a "
+    "streak, texture).", basis="physics", stage=_V)
 MINOR_AXIS_MIN_PX = decision(
     "MINOR_AXIS_MIN_PX", 0.5, "px",
     "An isophote narrower than one pixel is traced between pixel centres: its shape is the "
     "sampling's, not the highlight's.", basis="physics", stage=_V)
 QUANTISATION_SIGMA_LSB = decision(
     "QUANTISATION_SIGMA_LSB", 1.0 / np.sqrt(12.0), "least significant bits",
-    "The smallest noise an integer image is judged against: rounding, uniform over one step, has "
-    "standard deviation 1 / sqrt(12) (JPEG and noise-free renders would otherwise measure 0).",
-    basis="physics", stage=_V)
+    "The smallest noise an integer image is judged against: rounding, uniform over one step, has standard "
+    "deviation 1 / sqrt(12) (JPEG and noise-free renders would otherwise measure 0).", basis="physics", stage=_V)
 NOISE_LEVEL_BINS = decision(
     "NOISE_LEVEL_BINS", 16, "intensity bins over full scale",
-    "Significance and panels use the noise at the pixel's level, from the frame's noise level "
-    "function: sRGB amplifies the dark's (read noise 2 % of full scale: 9 levels over a dark "
-    "8-bit frame, 3 at a lobe's 175 background). Bins of 1/16 hold the sRGB slope within 30 % "
-    "above 40 levels; a bin takes the largest of itself and its two neighbours, so that a drawn "
-    "panel of one level (its own bins' noise near 0) cannot lower the bar that finds it.",
-    basis="physics", stage=_V)
+    "Significance and panels use the noise at the pixel's level, from the frame's noise level function: sRGB "
+    "amplifies the dark's (read noise 2 % of full scale: 9 levels over a dark 8-bit frame, 3 at a lobe's 175 "
+    "background). Bins of 1/16 hold the sRGB slope within 30 % above 40 levels; a bin takes the largest of "
+    "itself and its two neighbours, so that a drawn panel of one level (its own bins' noise near 0) cannot lower "
+    "the bar that finds it.", basis="physics", stage=_V)
 NOISE_LEVEL_MIN_SAMPLES = decision(
     "NOISE_LEVEL_MIN_SAMPLES", 500, "pixels",
-    "A bin's noise from at least this many pixels (the MAD's standard error about 5 %).",
-    basis="physics", stage=_V)
+    "A bin's noise from at least this many pixels (the MAD's standard error about 5 %).", basis="physics", stage=_V)
 CONFIDENCE_COEFFICIENTS = decision(
     "CONFIDENCE_COEFFICIENTS", np.array([-11.158, 1.564, 0.403, 1.844, 0.166, 0.001]),
     "logistic intercept, then weights of white share, significance, white surround, residual "
@@ -508,6 +500,13 @@ PAIR_TOL_PX = decision(
     "Largest distance between a peak's region and the rig's predicted curve for it to be another "
     "guide's highlight: half a pixel of BP rounding per axis and about a pixel of the detection's "
     "blur (as OWN_RADIUS_PX).", basis="physics", stage=_V)
+LOBE_TWIN_EXTENT_RATIO = decision(
+    "LOBE_TWIN_EXTENT_RATIO", 1.5, "largest ratio of two lobes' isophote extents in one direction",
+    "Two guides' lobes of one smooth patch image its one shape: their isophotes differ in extent only by the "
+    "change of curvature between the specular points (an extent goes as curvature^-1/2; lightaware-curved's "
+    "patches change by up to 37 %, a ratio of 1.2) and the other lobe's tail. Beyond it no curved-patch fit "
+    "is tried (reconstruct.curved_lobes). Measured, not tuned: liver pairs 1.04 to 1.08, a colonoscope "
+    "glint pair 1.91.", basis="physics", stage=_L)
 LIGHT_AWARE_ROI_SCALE = decision(
     "LIGHT_AWARE_ROI_SCALE", 2.5, "times the detection's ROI half-size, about the BP",
     "The window the photometric fit reads (the lobe's tails down to the background, which the detection's ROI, "

@@ -397,12 +397,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
 
     def released(r: LightAwareEstimate, resolved: bool = False) -> LightAwareEstimate:
-        """``r`` as returned: its depth within the ceiling, the BP ray's error beside it set, the guides'
-        spread counted in a depth-less sigma unless ``resolved``."""
-        r = depth_within_ceiling(_la.estimate.light_behind_surface(r, ray, rig.positions))
-        at = bp_error_depth_mm(r, nominal_depth_mm)
-        r = r if resolved else with_guide_spread(r, ray, at, rig)
-        return dataclasses.replace(r, bp_ray_error_deg=bp_ray_error_deg(ray, at, rig))
+        return _released(r, ray, rig, nominal_depth_mm, resolved)
 
     misfit_sigma: bool | float = bool(quadric)
     if status == "plane_misfit" and not quadric:
@@ -428,6 +423,48 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
                                                    f"candidate(s) beside it ({wide.shape[1]} x {wide.shape[0]} px)")
     for name, r in out.items():
         out[name] = released(r, paired and name == "photometric_fit")
+
+
+def _released(r: LightAwareEstimate, ray, rig, nominal_depth_mm, resolved: bool = False) -> LightAwareEstimate:
+    """``r`` as returned: its depth within the ceiling, the error beside it of the BP's ray ``ray`` set, the
+    guides' spread counted in a depth-less sigma unless ``resolved``."""
+    r = depth_within_ceiling(_la.estimate.light_behind_surface(r, ray, rig.positions))
+    at = bp_error_depth_mm(r, nominal_depth_mm)
+    r = r if resolved else with_guide_spread(r, ray, at, rig)
+    return dataclasses.replace(r, bp_ray_error_deg=bp_ray_error_deg(ray, at, rig))
+
+
+def patch_fit(name: str, image, est, camera, rig: LightRig, at: Roi, *, nominal_depth_mm: float = 20.0,
+              saturation_level: float | None = None, response=None, linear=None, **_ignored) -> LightAwareEstimate:
+    """One curved-patch fit of a highlight on the ROI ``at``, which may hold other guides' lobes of the patch
+    (:mod:`simtest.reconstruct.curved_lobes`).
+
+    Parameters
+    ----------
+    name : {"quadric_fit", "cubic_patch_fit"}
+        The fit (:func:`~simtest.reconstruct.lightaware.quadric_fit` or
+        :func:`~simtest.reconstruct.lightaware.cubic_patch_fit`).
+    image, est, camera, rig, nominal_depth_mm, saturation_level, response, linear
+        As for :func:`light_aware_estimates` (its other arguments ignored).
+    at : Roi
+        The pixels fitted.
+
+    Returns
+    -------
+    LightAwareEstimate
+        As :func:`light_aware_estimates` returns it: its depth within the ceiling, ``bp_ray_error_deg`` set.
+
+    Raises
+    ------
+    KeyError
+        An unknown ``name``.
+    """
+    fit = {"quadric_fit": quadric_fit, "cubic_patch_fit": cubic_patch_fit}[name]
+    img = np.asarray(image)
+    gray, saturation_level = _fit_intensities(img, response, linear, saturation_level)[:2]
+    r = _curved_fit(name, fit, gray, at, est, camera, rig, saturation_level, nominal_depth_mm, True)
+    ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
+    return _released(r, ray, rig, nominal_depth_mm)
 
 
 def _curved_fit(name, fit, gray, at: Roi, est, camera, rig, saturation_level, nominal_depth_mm, misfit_sigma):

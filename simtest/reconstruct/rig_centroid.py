@@ -27,6 +27,7 @@ import numpy as np
 from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, PAIR_DEPTH_MAX_MM,
                                PAIR_DEPTH_MIN_MM, PAIR_TOL_PX)
 from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct.curved_lobes import curved_lobe_rows
 from simtest.reconstruct.detect import default_full_scale
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_light_aware
@@ -159,7 +160,8 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
                          **kwargs) -> list:
     """The light-aware step of one image or frame as ``simtest reconstruct`` runs it:
     :func:`~simtest.reconstruct.light_fits.with_light_aware`, then the rig's fused lobes split or
-    given their centroid light's normal; a list of SpecularityEstimate.
+    given their centroid light's normal, then a curved patch's guide lobes fitted as one
+    (:func:`~simtest.reconstruct.curved_lobes.curved_lobe_rows`); a list of SpecularityEstimate.
     """
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
     # a weak twin is ok to the fits and the rig's rules, and stays so where its plane fit confirms the twin (its
@@ -183,6 +185,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
                               plane_only=split, **kwargs)
     split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray)
     out = rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
+    out = curved_lobe_rows(image, out, camera, rig, kwargs, gray=gray)
     weak = [k for k, e in enumerate(out) if e.ok and tuple(e.bp_px) in weak_bps]
     if weak:
         bps = np.array([e.bp_px for e in out], np.float64)
