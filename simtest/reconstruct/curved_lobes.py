@@ -34,7 +34,7 @@ from simtest._threads import one_thread_each
 from simtest.decisions import LOBE_TWIN_EXTENT_RATIO, PAIR_TOL_PX
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect_pixels import luma
-from simtest.reconstruct.light_fits import _roi_union, patch_fit
+from simtest.reconstruct.light_fits import _peaks_in, _roi_union, patch_fit
 from simtest.reconstruct.rig_lobes import _bright_region, _inside, _row
 from simtest.reconstruct.rig_pairs import estimate_wander_px, patch_specular_points
 
@@ -49,15 +49,9 @@ CURVED_LOBE_STATUSES = ("cluster", "merged", "bad_fit", "not_an_ellipse")
 _PATCH_FITS = ("quadric_fit", "cubic_patch_fit")
 
 
-def _in_roi(est, uv) -> bool:
-    """Whether the point ``uv`` (u, v) px lies in the candidate's ROI (row0, row1, col0, col1)."""
-    r0, r1, c0, c1 = est.roi
-    return bool(r0 <= uv[1] < r1 and c0 <= uv[0] < c1)
-
-
 def _near(a, b) -> bool:
     """Whether either candidate's ROI holds the other's BP (a lobe's ROI may stop short of the other's peak)."""
-    return _in_roi(a, b.bp_px) or _in_roi(b, a.bp_px)
+    return _peaks_in(b.bp_px, Roi(*a.roi)) + _peaks_in(a.bp_px, Roi(*b.roi)) > 0
 
 
 def _extents(est) -> np.ndarray:
@@ -104,8 +98,7 @@ def _groups(estimates, places: int, shape, roi_scale: float) -> list[tuple[list[
         # a smooth patch shows one lobe per place of the lights: any other candidate's peak in the ROI the fit
         # would read says it is not one
         at = _fit_roi(estimates, members, shape, roi_scale)
-        alone = not any(at.row0 <= e.bp_px[1] < at.row1 and at.col0 <= e.bp_px[0] < at.col1
-                        for k, e in enumerate(estimates) if k not in members)
+        alone = not _peaks_in([e.bp_px for k, e in enumerate(estimates) if k not in members], at)
         fused = len(members) == 1 and estimates[i].status != "cluster"  # (a lone cluster: its peak no candidate)
         if closed and alone and len(members) <= places and (fused or len(members) > 1 and _twins(estimates, members)):
             groups.append((members, at))
