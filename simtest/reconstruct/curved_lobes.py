@@ -35,7 +35,7 @@ from simtest.decisions import LOBE_TWIN_EXTENT_RATIO, PAIR_TOL_PX
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _peaks_in, _roi_union, patch_fit
-from simtest.reconstruct.rig_lobes import _bright_region, _inside, _row
+from simtest.reconstruct.rig_lobes import _bright_region, _inside, _own_guide, _row
 from simtest.reconstruct.rig_pairs import estimate_wander_px, patch_specular_points
 
 __all__ = ["CURVED_LOBE_STATUSES", "curved_lobe_rows"]
@@ -109,18 +109,15 @@ def _groups(estimates, places: int, shape, roi_scale: float) -> list[tuple[list[
 def _placed(pts: np.ndarray, members: list[int], estimates, gray) -> list[tuple[int, int]] | None:
     """``[(member, guide), ...]``: where the guides' points ``pts`` (J, 2) confirm the group (module docstring),
     a lone member once per guide whose point lies in its bright region; else None."""
-    ok = np.isfinite(pts).all(axis=1)
-    gaps = np.linalg.norm(pts[None] - np.array([estimates[m].bp_px for m in members], np.float64)[:, None], axis=-1)
-    gaps[:, ~ok] = np.inf
-    reach = PAIR_TOL_PX + np.array([estimate_wander_px(estimates[m]) for m in members])
-    if len(members) > 1:
-        guide = np.argmin(gaps, axis=1)
-        if not (gaps[np.arange(len(members)), guide] <= reach).all() or len(set(guide.tolist())) < len(members):
-            return None
-        return list(zip(members, guide.tolist()))
-    region = _bright_region(gray, estimates[members[0]])
-    if region is None or not gaps[0].min() <= reach[0]:
+    guides = [_own_guide(pts, estimates[m].bp_px, PAIR_TOL_PX + estimate_wander_px(estimates[m])) for m in members]
+    if None in guides or len(set(guides)) < len(members):
         return None
+    if len(members) > 1:
+        return list(zip(members, guides))
+    region = _bright_region(gray, estimates[members[0]])
+    if region is None:
+        return None
+    ok = np.isfinite(pts).all(axis=1)
     inside = np.flatnonzero(ok & _inside(region, np.where(ok[:, None], pts, -1.0)))
     apart = np.linalg.norm(pts[inside][:, None] - pts[inside][None], axis=-1)[np.triu_indices(len(inside), 1)]
     if len(inside) < 2 or apart.min() < PAIR_TOL_PX:
@@ -151,9 +148,9 @@ def curved_lobe_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=No
     list of SpecularityEstimate
         In the order of ``estimates``, a confirmed lone candidate's rows in the rig's order in its place.
     """
-    out = [[e] for e in estimates]
     if rig is None or not rig.has_separate_lights:
         return list(estimates)
+    out = [[e] for e in estimates]
     shape = np.asarray(image).shape
     for members, at in _groups(estimates, rig.light_places, shape, fit_kwargs.get("quadric_roi_scale", 1.5)):
         anchor = estimates[members[0]]
