@@ -509,9 +509,9 @@ def _rig_grad_ggx(dT, rl, n, dns, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, 
             dlogF = np.where(F > 0.0, dF / F, 0.0)
         kD = np.where(free_h, -4.0 * am1 * cos_h / t, 0.0)  # d log D / d cos_h
         # d log G1(v) / d delta, and d log (1 / (4 n . v)) / d delta = -1 / delta
-        kGi = np.where(delta > 1e-6, a2 / ((1.0 + ui) * ui * ci ** 3) - 1.0 / ci, 0.0)
-        kGo = np.where(cos_o > 1e-6, a2 / ((1.0 + uo) * uo * co ** 3), 0.0)  # d log G1(l) / d cos_o
-        irs, sz, f2 = -(ir ** 3) * sl, s * dT[2] - L[j, 2], 2.0 * (ir * ir) * sl  # (per ds, sz * ir: cos theta)
+        kGi = np.where(delta > 1e-6, a2 / ((1.0 + ui) * ui * (ci * ci * ci)) - 1.0 / ci, 0.0)
+        kGo = np.where(cos_o > 1e-6, a2 / ((1.0 + uo) * uo * (co * co * co)), 0.0)  # d log G1(l) / d cos_o
+        irs, sz, f2 = -(ir * ir * ir) * sl, s * dT[2] - L[j, 2], 2.0 * (ir * ir) * sl  # (per ds, sz * ir: cos theta)
         raw_cp = sz * ir
         cp, live = (np.maximum(raw_cp, 1e-12), raw_cp > 1e-12) if m[j] > 0 else (None, None)
         for k in range(3):

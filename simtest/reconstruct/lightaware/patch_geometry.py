@@ -120,8 +120,9 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
     cubic = np.any(c3 != 0, axis=-1, keepdims=not one)  # a quadric patch keeps the quadric's root
     for _ in range(_CUBIC_NEWTON_STEPS if np.any(cubic) else 0):
         x, y, z, fx, fy, fz = grad(t)
+        # (x * x * x, not x**3: pow of a negative base costs a hundred times a product)
         F = (z + 0.5 * (kxx * x * x + 2 * kxy * x * y + kyy * y * y + kzz * z * z)
-             + (cxxx * x**3 + 3 * cxxy * x * x * y + 3 * cxyy * x * y * y + cyyy * y**3) / 6.0)
+             + (cxxx * x * x * x + 3 * cxxy * x * x * y + 3 * cxyy * x * y * y + cyyy * y * y * y) / 6.0)
         dF = fx * ax + fy * ay + fz * az
         good = np.abs(dF) > 1e-12
         t = np.where(cubic, t - np.where(good, F / np.where(good, dF, 1.0), 0.0), t)
