@@ -245,3 +245,37 @@ def synthetic_offset_highlight(size: int = 64, n_phong: float = 150.0):
     pts = [refine_isophote_points(roi, v * roi.max(), extract_isophote(roi, v * roi.max(), bp).points_uv)
            for v in isovalues]
     return roi, K, bp, rig, pts, isovalues
+
+
+def synthetic_sphere_two_guides(size: int = 48, radius_mm: float = 12.0, depth_mm: float = 40.0,
+                                n_phong: float = 60.0):
+    """Both guides' highlights on an exact Phong sphere (curved-patch bench input, 8-bit).
+
+    A sphere of ``radius_mm`` whose nearest point lies ``depth_mm`` down the optical axis, two guides
+    4 mm either side of the lens (inverse-square falloff), f = 400 px, the ROI ``size`` px square about
+    the axis. Each pixel's ray meets the sphere (nearest root); its value is the sum over the guides of
+    ``max(0, r_v . l)^n (depth / |X - L|)^2``, ``r_v`` the view ray mirrored in the normal; scaled to
+    200 at the brightest and rounded.
+
+    Returns ``(roi float64 (size, size), K, bp_uv, rig)``.
+    """
+    rig = LightRig(tuple(Light((x, 0.0, 0.0), 1.0, "inverse_square") for x in (-4.0, 4.0)))
+    c0 = (size - 1) / 2
+    K = np.array([[400.0, 0, c0], [0, 400.0, c0], [0, 0, 1.0]])
+    uu, vv = np.meshgrid(np.arange(float(size)), np.arange(float(size)))
+    d = pixel_to_ray(np.column_stack([uu.ravel(), vv.ravel()]), K)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    centre = np.array([0.0, 0.0, depth_mm + radius_mm])
+    b = d @ centre
+    t = b - np.sqrt(np.maximum(b * b - (centre @ centre - radius_mm**2), 0.0))
+    X = d * t[:, None]
+    n = (X - centre) / radius_mm
+    mirror = d - 2.0 * (d * n).sum(axis=1, keepdims=True) * n  # the view ray reflected off the sphere
+    img = np.zeros(len(d))
+    for light in rig.lights:
+        to_l = np.asarray(light.position_mm) - X
+        dist = np.linalg.norm(to_l, axis=1)
+        img += np.maximum((mirror * to_l).sum(axis=1) / dist, 0.0) ** n_phong * (depth_mm / dist) ** 2
+    img = np.round(img.reshape(size, size) / img.max() * 200.0)
+    bp = np.array(np.unravel_index(int(np.argmax(img)), img.shape)[::-1], dtype=np.float64)
+    return img, K, bp, rig

@@ -15,7 +15,7 @@ Rows (:func:`bench_reconstruct`), one core unless said:
 - wall ms per frame of a 1350 x 1080 MJPG video of that frame panning, through ``simtest
   reconstruct``'s video path on :data:`VIDEO_WORKERS` worker processes in a fresh interpreter
   (every core, not one);
-- the light-aware fits per highlight (``isocurve_fit``, ``photometric_fit``) and on a real tile
+- the light-aware fits per highlight (``isocurve_fit``, ``photometric_fit``, ``cubic_patch_fit``) and on a real tile
   with an assumed rig;
 - ms for a rendered 1350 x 1080 colonoscope frame (the bundled ``colonoscope_tube`` scene at seed 0,
   through its own camera model), and for that frame with its camera file's lights and response,
@@ -44,7 +44,7 @@ from pathlib import Path
 from benchmarks.inputs import (VIDEO_FRAMES, VIDEO_STEP_PX, banner_frame, banner_mosaic, bench_video_file,
                                colonoscope_frame, colonoscope_render, noisy_frame, real_frame,
                                synthetic_frame, synthetic_offset_highlight, synthetic_roi_image,
-                               video_first_frame)
+                               synthetic_sphere_two_guides, video_first_frame)
 from benchmarks.opencv_replay import opencv_calls, replay_opencv_ms
 from benchmarks.timing import clone_env, cpu_s_with_workers, every_core, runs, single_core, time_ms, time_ms_cpu
 from simtest.bench import BenchResult
@@ -57,7 +57,7 @@ from simtest.reconstruct.estimators import estimate_from_conic
 from simtest.reconstruct.fit import fit_ellipse
 from simtest.reconstruct.frames import open_frames, reconstruct_frames, write_frames
 from simtest.reconstruct.isophote import extract_isophote
-from simtest.reconstruct.lightaware import isocurve_fit, photometric_fit
+from simtest.reconstruct.lightaware import cubic_patch_fit, isocurve_fit, photometric_fit
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
 from simtest.reconstruct.cli import reconstruct_single
 from simtest.reconstruct.light_fits import with_light_aware
@@ -365,7 +365,8 @@ def _candidate_frame_rows(name: str, missing: str, frame_camera, repeat: int, ta
 
 
 def _bench_light_aware(repeat: int) -> list[BenchResult]:
-    """``isocurve_fit`` (target 1 ms) and ``photometric_fit`` (target 5 ms) per highlight."""
+    """``isocurve_fit`` (target 1 ms), ``photometric_fit`` (target 5 ms) and ``cubic_patch_fit`` (no
+    target: a figure to compare commits by) per highlight."""
     roi, K, bp, rig, pts, isovalues = synthetic_offset_highlight()
     n_pts = sum(len(p) for p in pts)
     iso = isocurve_fit(pts, isovalues, bp, K, rig)
@@ -378,4 +379,11 @@ def _bench_light_aware(repeat: int) -> list[BenchResult]:
     out.append(BenchResult("reconstruct", "per highlight: photometric_fit (light 3 mm off)",
                            med, "ms", 5.0, best, f"status {pho.status}, {roi.size} px ROI, "
                            f"{pho.n_evaluations} model evaluations"))
+    sph, K2, bp2, rig2 = synthetic_sphere_two_guides()
+    cub = cubic_patch_fit(sph, (0, 0), bp2, K2, rig2, nominal_depth_mm=40.0)
+    med, best = time_ms(lambda: cubic_patch_fit(sph, (0, 0), bp2, K2, rig2, nominal_depth_mm=40.0),
+                        runs(repeat, 10, 3))
+    out.append(BenchResult("reconstruct", "per highlight: cubic_patch_fit (sphere 40 mm away, two guides 8 mm apart)",
+                           med, "ms", None, best, f"status {cub.status}, {sph.size} px ROI, "
+                           f"{cub.n_evaluations} model evaluations"))
     return out
