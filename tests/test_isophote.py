@@ -434,6 +434,44 @@ def test_a_frames_batch_of_contours_is_find_contours_one_by_one(seed):
             assert np.array_equal(g, w[0] if w else np.empty((0, 2))) and g.shape == (w[0].shape if w else (0, 2))
 
 
+@given(seed=st.integers(0, 2**32 - 1), batch_px=st.integers(1, 20000))
+@settings(max_examples=40, deadline=None)
+def test_a_batch_cut_into_batches_gives_the_same_bits(seed, batch_px):
+    # a batch stacks at most BATCH_MAX_PX of boxes (a frame of overlapping boxes would stack
+    # gigabytes): cut anywhere between boxes, the answers are the uncut batch's, bit for bit (a
+    # box's answer reads its own squares only)
+    from unittest import mock
+
+    from simtest.reconstruct import marching
+    from simtest.reconstruct.isophote import _component_box, _region
+
+    rng = np.random.default_rng(seed)
+    jobs = []
+    while len(jobs) < 12:
+        img, level, bp, off, shape = _random_region(rng)
+        try:
+            g = _region(img, bp, off, shape)
+        except ValueError:
+            continue
+        comp = _component_box(g.sub, level, g.ri, g.ci) if g.near_bp > level else None
+        if comp is not None:
+            jobs.append((comp[0], level, (g.roi.col0 + comp[1][1], g.roi.row0 + comp[1][0]), g.bp_uv))
+    args = ([b for b, *_ in jobs], np.array([lv for _, lv, *_ in jobs]), np.array([o for *_, o, _ in jobs], np.float64),
+            np.array([bp for *_, bp in jobs]))
+    with mock.patch.object(marching, "BATCH_MAX_PX", 1 << 40):
+        whole = marching.batch_contours(*args)
+    with mock.patch.object(marching, "BATCH_MAX_PX", batch_px):
+        cut = marching.batch_contours(*args)
+    assert len(cut) == len(whole)
+    for a, b in zip(cut, whole):
+        if a is None or b is None:
+            assert a is None and b is None
+        elif isinstance(b, list):
+            assert isinstance(a, list) and len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
+        else:
+            assert a.shape == b.shape and np.array_equal(a, b)
+
+
 def test_the_batch_of_contours_meets_each_answer():
     # the property test above means something only if its random regions give every answer
     got, _, cut = _batch_and_one_by_one(np.random.default_rng(2), 400)

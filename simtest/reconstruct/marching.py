@@ -20,6 +20,10 @@ for _case, _pairs in {1: [(0, 2)], 2: [(3, 0)], 3: [(3, 2)], 4: [(2, 1)], 5: [(0
     _SQUARE_SEGMENTS[_case, : len(_pairs)] = _pairs
 #: The pixels (0 upper left, 1 upper right, 2 lower left, 3 lower right) each edge's crossing is interpolated from, to.
 _EDGE_ENDS = np.array([[0, 2, 0, 1], [1, 3, 2, 3]])
+#: The most pixels of boxes one batch stacks: overlapping boxes (146 M px of them on the 1.9 M px banner at t
+#: relative to each BP) would stack gigabytes, paid in page faults; whole boxes in batches keep each array under
+#: glibc's 32 MiB mmap threshold, reused. A box's answer reads its own squares only: the same bits in any batch.
+BATCH_MAX_PX = 1 << 21
 
 
 def batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np.ndarray) -> list:
@@ -45,6 +49,10 @@ def batch_contours(boxes: list, levels: np.ndarray, origins: np.ndarray, bps: np
         encloses its BP, else a (0, 2) array. For one reaching a side: its open contours, (row, col)
         in the box. None where a crossing falls on a pixel.
     """
+    if len(boxes) > 1 and (px := np.cumsum([b.size for b in boxes]))[-1] > BATCH_MAX_PX:
+        cut = int(max(1, np.searchsorted(px, BATCH_MAX_PX, side="right")))  # whole boxes, answers in order
+        return (batch_contours(boxes[:cut], levels[:cut], origins[:cut], bps[:cut])
+                + batch_contours(boxes[cut:], levels[cut:], origins[cut:], bps[cut:]))
     n, (h, w) = len(boxes), np.array([b.shape for b in boxes], np.int64).T
     # boxes of one width stacked in a column (border rows below the level keep them apart)
     by_w = np.argsort(w, kind="stable")
