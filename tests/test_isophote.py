@@ -8,7 +8,7 @@ import inspect
 import cv2
 import numpy as np
 import pytest
-from hypothesis import example, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 import simtest.reconstruct as rec_pkg
@@ -388,11 +388,9 @@ def test_the_border_level_of_an_roi_smoothed_alone_from_its_ring(seed, channels,
     assert abs(got - want) <= 1e-9 * max(1.0, abs(want))
 
 
-def _batch_and_one_by_one(rng, n):
-    """:func:`marching.batch_contours` of ``n`` random regions' BP components in one batch, and
-    each one's by :func:`isophote._contours` alone (its closed contours, or its open pieces)."""
-    from simtest.reconstruct.isophote import _component_box, _contours, _region
-    from simtest.reconstruct.marching import batch_contours
+def _component_jobs(rng, n):
+    """``(region, level, component box)`` of the BP components of up to ``n`` random regions."""
+    from simtest.reconstruct.isophote import _component_box, _region
 
     jobs = []
     for _ in range(n):
@@ -404,6 +402,16 @@ def _batch_and_one_by_one(rng, n):
         comp = _component_box(g.sub, level, g.ri, g.ci) if g.near_bp > level else None
         if comp is not None:
             jobs.append((g, level, comp))
+    return jobs
+
+
+def _batch_and_one_by_one(rng, n):
+    """:func:`marching.batch_contours` of ``n`` random regions' BP components in one batch, and
+    each one's by :func:`isophote._contours` alone (its closed contours, or its open pieces)."""
+    from simtest.reconstruct.isophote import _contours
+    from simtest.reconstruct.marching import batch_contours
+
+    jobs = _component_jobs(rng, n)
     origins = np.array([(g.roi.col0 + c0, g.roi.row0 + r0) for g, _, (_, (r0, c0), _) in jobs], np.float64)
     got = batch_contours([box for _, _, (box, _, _) in jobs], np.array([lv for _, lv, _ in jobs]), origins,
                           np.array([g.bp_uv for g, _, _ in jobs]))
@@ -443,19 +451,10 @@ def test_a_batch_cut_into_batches_gives_the_same_bits(seed, batch_px):
     from unittest import mock
 
     from simtest.reconstruct import marching
-    from simtest.reconstruct.isophote import _component_box, _region
 
-    rng = np.random.default_rng(seed)
-    jobs = []
-    while len(jobs) < 12:
-        img, level, bp, off, shape = _random_region(rng)
-        try:
-            g = _region(img, bp, off, shape)
-        except ValueError:
-            continue
-        comp = _component_box(g.sub, level, g.ri, g.ci) if g.near_bp > level else None
-        if comp is not None:
-            jobs.append((comp[0], level, (g.roi.col0 + comp[1][1], g.roi.row0 + comp[1][0]), g.bp_uv))
+    jobs = [(box, level, (g.roi.col0 + c0, g.roi.row0 + r0), g.bp_uv)
+            for g, level, (box, (r0, c0), _) in _component_jobs(np.random.default_rng(seed), 16)]
+    assume(len(jobs) > 1)
     args = ([b for b, *_ in jobs], np.array([lv for _, lv, *_ in jobs]), np.array([o for *_, o, _ in jobs], np.float64),
             np.array([bp for *_, bp in jobs]))
     with mock.patch.object(marching, "BATCH_MAX_PX", 1 << 40):
