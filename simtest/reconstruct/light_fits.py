@@ -393,16 +393,13 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     half = quadric_roi_scale * max(roi.shape) / 2.0
     near = Roi.around(est.bp_px, half, shape)
     status = out["photometric_fit"].status  # the plane's: which curved fits run by default
-    # a misfitting patch's sigma only where the plane misfits, below what rule 4 could take
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
-
-    def released(r: LightAwareEstimate, resolved: bool = False) -> LightAwareEstimate:
-        return _released(r, ray, rig, nominal_depth_mm, resolved)
-
+    # a misfitting patch's sigma only where the plane misfits, below what rule 4 could take
     misfit_sigma: bool | float = bool(quadric)
     if status == "plane_misfit" and not quadric:
         # the plane as rule 4 reads it
-        misfit_sigma = min(90.0, _bp_ray_error_beside(est, released(out["photometric_fit"])) / SIGMA_MARGIN)
+        plane = _released(out["photometric_fit"], ray, rig, nominal_depth_mm)
+        misfit_sigma = min(90.0, _bp_ray_error_beside(est, plane) / SIGMA_MARGIN)
     # a smooth patch shows a lobe per place of the rig's lights: a ROI with more peaks (glints) is no quadric's
     lobes, bps = rig.light_places, np.asarray(partners, dtype=np.float64).reshape(-1, 2)
     inside = _peaks_in(bps, near)
@@ -422,7 +419,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
                 out[name] = _la.plane._note(again, f"fitted on the ROI that holds the {len(partners)} other "
                                                    f"candidate(s) beside it ({wide.shape[1]} x {wide.shape[0]} px)")
     for name, r in out.items():
-        out[name] = released(r, paired and name == "photometric_fit")
+        out[name] = _released(r, ray, rig, nominal_depth_mm, paired and name == "photometric_fit")
 
 
 def _released(r: LightAwareEstimate, ray, rig, nominal_depth_mm, resolved: bool = False) -> LightAwareEstimate:
