@@ -18,10 +18,12 @@ from hypothesis import strategies as st
 
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct.lightaware import LightAwareEstimate, cubic_patch_fit, quadric_fit
+from simtest.reconstruct.lightaware import patch
 from simtest.reconstruct.lightaware.patch import MISFIT_SIGMA_NOTE
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import SIGMA_MARGIN, _angle_deg, _bp_ray_error_beside, recommend
 from simtest.reconstruct.settings import ReconSettings
+from benchmarks.inputs import synthetic_sphere_two_guides
 from test_lightaware import plane_case
 
 ONE_LIGHT = LightRig((Light((3.0, 0.0, 0.0), 1.0, "inverse_square"),))
@@ -135,3 +137,41 @@ def test_the_recommendation_reads_a_misfit_patchs_sigma_only_beside_a_plane_misf
         assert a.normal_from == b.normal_from
         np.testing.assert_array_equal(a.normal, b.normal)
         assert a.normal_sigma_deg == b.normal_sigma_deg
+
+
+def _profile_both_ways(S, depths, k):
+    """The coarse profile with the flat start at every depth in both sweeps (the reference that
+    :func:`~simtest.reconstruct.lightaware.patch._coarse_profile` saves the second sweep's flat fits of)."""
+    flat = patch._flat_start(50.0, k)
+    cost, sol = np.full(depths.size, np.inf), [None] * depths.size
+    for seq in (range(depths.size), range(depths.size - 1, -1, -1)):
+        prev = None
+        for i in seq:
+            starts = [flat] + ([prev] if prev is not None else [])
+            c, p, _ = patch._fit_fixed_depth(S, np.log(depths[i]), [0, 1, 3, 4, 5, 6], starts,
+                                             patch._PROFILE_NFEV, patch._PROFILE_TOL)
+            if c < cost[i]:
+                cost[i], sol[i] = c, p
+            prev = sol[i] if sol[i] is not None else p
+    return cost, sol
+
+
+def test_the_coarse_profile_is_the_two_way_sweeps_without_its_repeated_flat_fits():
+    # a fit from the flat start at one depth is the same fit going up and going down: made once,
+    # the profile (each depth's least cost and its solution) is the same to the bit, in fewer
+    # evaluations; on an exact sphere under two guides and on a ROI no patch fits (stripes)
+    sphere, K2, bp2, rig2 = synthetic_sphere_two_guides(size=32)
+    striped, K, bp = _striped_roi()
+    for values, Kc, bpc, rig, depth in ((sphere, K2, bp2, rig2, 40.0), (striped, K, bp, TWO_LIGHTS, 20.0)):
+        P = patch._patch_problem(values, (0.0, 0.0), bpc, Kc, rig, None, patch._PROFILE_PIXELS, 12)[0]
+        S = {"res": patch._quadric_residual(P), "x_scale": np.array([1.0 / P.px_per_rad] * 2 + [0.1] * 4 + [0.3]),
+             "batched": True}
+        depths = depth * patch._PROFILE_FACTORS
+        cost, sol, nfev = patch._coarse_profile(S, depths, None, 100, 7)
+        ref_cost, ref_sol = _profile_both_ways(S, depths, 7)
+        np.testing.assert_array_equal(cost, ref_cost)
+        assert np.isfinite(cost).any()
+        for got, want in zip(sol, ref_sol):
+            assert (got is None) == (want is None)
+            if got is not None:
+                np.testing.assert_array_equal(got, want)

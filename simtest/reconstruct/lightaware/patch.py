@@ -131,15 +131,16 @@ def _coarse_profile(S, depths, start_roughness, max_nfev, k):
     cost = np.full(depths.size, np.inf)
     sol: list = [None] * depths.size
     nfev = 0
-    for seq in (range(depths.size), range(depths.size - 1, -1, -1)):
+    for down, seq in enumerate((range(depths.size), range(depths.size - 1, -1, -1))):
         prev = None
-        for i in seq:
-            starts = [flat] + ([prev] if prev is not None else [])
-            c, p, nf = _fit_fixed_depth(S, np.log(depths[i]), quad, starts, min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
+        for i in seq:  # the flat start going up only: going down it would give the same fit again
+            starts = ([] if down else [flat]) + ([prev] if prev is not None else [])
+            c, p, nf = (_fit_fixed_depth(S, np.log(depths[i]), quad, starts, min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
+                        if starts else (np.inf, None, 0))
             nfev += nf
             if c < cost[i]:
                 cost[i], sol[i] = c, p
-            prev = sol[i] if sol[i] is not None else p
+            prev = sol[i] if sol[i] is not None else flat  # flat: what a depth without a finite fit gave
     return cost, sol, nfev
 
 
