@@ -68,29 +68,28 @@ VIDEO_WORKERS = 2
 
 def _bench_colonoscope_rig(res, repeat: int) -> list[BenchResult]:
     """``simtest reconstruct`` of the rendered colonoscope frame with its camera file, lights and
-    sensor response included (``camera.json`` of ``simtest render``): detection, the co-located
-    estimators and the light-aware fits of the accepted highlights, as the command line runs them
-    (issue 39's row: target 2 s, bar 10 s, one core)."""
+    sensor response included (``camera.json`` of ``simtest render``), on one worker:
+    :func:`simtest.reconstruct.cli.reconstruct_single`, the command line's own computation (the
+    frame settings, detection, the co-located estimators, the light-aware fits of the accepted
+    highlights and of the rig's fused lobes, pairs and partners; issue 39's row: target 2 s, bar
+    10 s, one core)."""
     name = ("per rendered colonoscope frame with its camera file (lights, response): reconstruct + "
-            "light-aware fits, as `simtest reconstruct -k camera.json`")
+            "light-aware fits, as `simtest reconstruct -k camera.json -j 1`")
     if res is None:
         return [BenchResult("reconstruct", name + " (Mitsuba unavailable)", float("nan"), "ms",
                             RIG_FRAME_TARGET_MS)]
-    img, cam, rig = res.frame, res.camera_model, res.light_rig
-    response = video_response(res.spec.sensor)
-
+    cf = CameraFile(res.camera_model, res.light_rig, video_response(res.spec.sensor))
     last = []  # the estimates of the last run (the counts below; no run of its own)
 
-    def run():  # the camera file's rig and response reach the detection and its checks, as in the CLI
-        last[:] = [with_light_aware(img, reconstruct(img, cam, lights=rig, response=response), cam, rig,
-                                    cubic=False, response=response)]
+    def run():
+        last[:] = [reconstruct_single(res.frame, cf, workers=1)[0]]
 
     med, best, cpu = time_ms_cpu(run, runs(repeat, 10, 2))
     ests = last[0]
     fitted = sum(bool(getattr(e, "light_aware", None)) for e in ests)
     return [BenchResult("reconstruct", name, med, "ms", RIG_FRAME_TARGET_MS, best,
-                        f"bar {RIG_FRAME_BAR_MS:g} ms; {len(ests)} candidates, {fitted} fitted with "
-                        f"{len(rig.lights)} lights; CPU {cpu:.4g} ms")]
+                        f"bar {RIG_FRAME_BAR_MS:g} ms; {len(ests)} rows, {sum(e.ok for e in ests)} ok, {fitted} "
+                        f"fitted with {len(cf.lights.lights)} lights; CPU {cpu:.4g} ms")]
 
 
 def _bench_default_colonoscope_rig(repeat: int) -> list[BenchResult]:
