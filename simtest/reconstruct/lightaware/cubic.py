@@ -9,8 +9,7 @@ from simtest._lazy import require
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.patch import (
-    _PROFILE_FACTORS, _coarse_profile, _fit_fixed_depth, _flat_start, _light_normals, _patch_problem,
-    _patch_uncertainty,
+    _PROFILE_FACTORS, _coarse_profile, _flat_start, _light_normals, _patch_problem, _patch_uncertainty, _sweep,
 )
 from simtest.reconstruct.lightaware.patch_geometry import PATCH_PARAMS as _CUBIC_PARAMS
 from simtest.reconstruct.lightaware.patch_geometry import _cubic_patch_geometry, _cubic_patch_image
@@ -93,16 +92,7 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
     # the depths asked for, with steps of at most _PROFILE_STEP between them for the warm starts
     lo, hi = np.log(depths.min()), np.log(depths.max())
     grid = np.union1d(np.log(depths), np.linspace(lo, hi, int(np.ceil((hi - lo) / np.log(_PROFILE_STEP))) + 1))
-    cost = np.full(grid.size, np.inf)
-    sol: dict[int, np.ndarray] = {}
-    for down, seq in enumerate((range(grid.size), range(grid.size - 1, -1, -1))):
-        prev = None
-        for i in seq:  # the flat starts going up only: going down they would give the same fits again
-            starts = ([] if down else flats) + ([prev] if prev is not None else [])
-            c, p, _ = _fit_fixed_depth(S, grid[i], free, starts, max_nfev) if starts else (np.inf, None, 0)
-            if c < cost[i]:
-                cost[i], sol[i] = c, p
-            prev = sol.get(i, flats[0])  # flats[0]: what a depth without a finite fit gave
+    cost = _sweep(S, grid, free, flats, max_nfev, 1e-8)[0]
     return cost[np.searchsorted(grid, np.log(depths))]
 
 

@@ -126,21 +126,24 @@ def _coarse_profile(S, depths, start_roughness, max_nfev, k):
     :func:`~simtest.reconstruct.lightaware.cubic.cubic_patch_fit` and, under separate lights, of
     :func:`quadric_fit` where its flat starts end in a misfit. Returns ``(cost, sol, nfev)``."""
     n0 = 50.0 if start_roughness is None else float(start_roughness)
-    flat = _flat_start(n0, k)
-    quad = [0, 1, 3, 4, 5, 6]
-    cost = np.full(depths.size, np.inf)
-    sol: list = [None] * depths.size
-    nfev = 0
-    for down, seq in enumerate((range(depths.size), range(depths.size - 1, -1, -1))):
+    return _sweep(S, np.log(depths), [0, 1, 3, 4, 5, 6], [_flat_start(n0, k)], min(max_nfev, _PROFILE_NFEV),
+                  _PROFILE_TOL)
+
+
+def _sweep(S, log_depths, free, flats, max_nfev, tol):
+    """Fixed-depth fits (:func:`_fit_fixed_depth`) over ``log_depths`` swept up and then down, each depth
+    from the ``flats`` going up and from the neighbour's solution (the first flat where it had no finite
+    fit); the least cost kept. Returns ``(cost (P,), solutions (P,) or None, nfev)``."""
+    cost, sol, nfev = np.full(len(log_depths), np.inf), [None] * len(log_depths), 0
+    for down, seq in enumerate((range(len(log_depths)), range(len(log_depths) - 1, -1, -1))):
         prev = None
-        for i in seq:  # the flat start going up only: going down it would give the same fit again
-            starts = ([] if down else [flat]) + ([prev] if prev is not None else [])
-            c, p, nf = (_fit_fixed_depth(S, np.log(depths[i]), quad, starts, min(max_nfev, _PROFILE_NFEV), _PROFILE_TOL)
-                        if starts else (np.inf, None, 0))
+        for i in seq:  # the flat starts going up only: going down they would give the same fits again
+            starts = ([] if down else list(flats)) + ([prev] if prev is not None else [])
+            c, p, nf = _fit_fixed_depth(S, log_depths[i], free, starts, max_nfev, tol) if starts else (np.inf, None, 0)
             nfev += nf
             if c < cost[i]:
                 cost[i], sol[i] = c, p
-            prev = sol[i] if sol[i] is not None else flat  # flat: what a depth without a finite fit gave
+            prev = sol[i] if sol[i] is not None else flats[0]
     return cost, sol, nfev
 
 
