@@ -78,6 +78,21 @@ def test_a_misfit_reads_its_valley_only_below_a_bound_on_its_local_sigma(monkeyp
     assert below.n_evaluations == full.n_evaluations
 
 
+def test_a_misfit_the_profiles_refit_replaces_reads_no_depth_valley(monkeypatch):
+    # under two lights the flat starts' misfit is fitted again from the coarse profile's depth, and
+    # the refit (lower cost) is returned: only its valley is read, the same estimate as reading both
+    values, K, bp = _striped_roi()
+    calls = []
+    original = patch._depth_valley
+    monkeypatch.setattr(patch, "_depth_valley", lambda *a, **k: calls.append(a[1].copy()) or original(*a, **k))
+    fit = quadric_fit(values, (0.0, 0.0), bp, K, TWO_LIGHTS)
+    assert fit.status == "patch_misfit" and fit.normal_sigma_deg is not None
+    assert len(calls) == 1, calls  # the refit's; the flat starts' misfit read none
+    P = patch._patch_problem(values, (0.0, 0.0), bp, K, TWO_LIGHTS, None, 800, 12)[0]
+    apex = patch._quadric_image(P.d[:1], P.b_ray, calls[0], P.rig_arr, P.Lm)[1]
+    np.testing.assert_array_equal(apex.ravel(), np.ravel(fit.normal))  # the valley read is the returned fit's
+
+
 @functools.lru_cache(maxsize=1)
 def _highlight():
     """A detected highlight (its BP ray is what the rules compare with)."""

@@ -209,20 +209,27 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     x_scale = np.array([1.0 / P.px_per_rad, 1.0 / P.px_per_rad, 0.1, 0.1, 0.1, 0.1, 0.3])
     best, nfev = _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev)
     S = {"res": res, "x_scale": x_scale, "batched": True}
-    est = _quadric_estimate(best, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev)
+    # the verdict first: a misfit's sigma (its depth valley, the costliest step) only for the fit returned
+    est = _quadric_estimate(best, nfev, P, S, rig, nominal_depth_mm, False, max_nfev)
+
+    def first():
+        if est.status != "patch_misfit" or misfit_sigma is False:
+            return est
+        return _quadric_estimate(best, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev)
+
     if rig.has_separate_lights and est.status in ("patch_misfit", "not_converged"):
         # the flat starts' basin missed the patch: the depth the coarse profile finds starts a second fit
         coarse = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, _PROFILE_PIXELS, 12)[0] or P
         cost, sol, n_profile = _coarse_profile(dict(S, res=_quadric_residual(coarse)),
                                                float(nominal_depth_mm) * _PROFILE_FACTORS, start_roughness, max_nfev, 7)
-        nfev = est.n_evaluations + n_profile
+        total = nfev + n_profile
         if np.isfinite(cost).any():
             again = _quadric_lm(res, sol[int(np.argmin(cost))], x_scale, max_nfev)
-            nfev += again.nfev
+            total += again.nfev
             if np.isfinite(again.cost) and (best is None or again.cost < best.cost):
-                return _quadric_estimate(again, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev)
-        est = dataclasses.replace(est, n_evaluations=nfev)
-    return est
+                return _quadric_estimate(again, total, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev)
+        return dataclasses.replace(first(), n_evaluations=total)
+    return first()
 
 
 def _quadric_estimate(best, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev) -> LightAwareEstimate:
