@@ -64,7 +64,7 @@ NOT_DECISIONS = {
     **{f"overlay.{n}": "how the overlay is drawn, no result" for n in ("_SHIFT", "_DASH_PX")},
     "frame_prep.LUMA_FRAME_MIN_HIGHLIGHTS": _SPEED,
     "isophotes.RESOLVE_BATCH_ISOPHOTES": _SPEED, "isophotes.RESOLVE_BATCH_MIN": _SPEED,
-    "isophotes.RESOLVE_BATCH_MIN_PX": _SPEED,
+    "isophotes.RESOLVE_BATCH_MIN_PX": _SPEED, "isophotes.RESOLVE_PENDING_MAX_BYTES": _SPEED,
     "isophotes.FIRST_BATCH_SIDE_PX": _SPEED,
     "pipeline.MMAP_THRESHOLD_BYTES": _SPEED, "pipeline.TRIM_THRESHOLD_BYTES": _SPEED,
     "table.TABLE_SCHEMA_VERSION": _CODES, "table.ROW_GROUP_ROWS": _SPEED,

@@ -31,6 +31,10 @@ RESOLVE_BATCH_ISOPHOTES = 256
 #: Fewer isophotes than this, in boxes of fewer px than the next, are contoured one by one.
 RESOLVE_BATCH_MIN = 32
 RESOLVE_BATCH_MIN_PX = 50_000
+#: The most bytes of component boxes a frame's deferred isophotes hold before they are contoured (:class:`_Batches`):
+#: at t = 0.1 of the BP (``--normalise bp``) a box can span much of the frame (731 boxes of 1.5 GB in all on the
+#: 2240 x 840 banner). A box's contour is the same in any batch (``batch_contours``): this bounds memory only.
+RESOLVE_PENDING_MAX_BYTES = 1 << 28
 
 
 def _roi_values(frame: _Frame, roi: Roi, smooth_sigma_px: float) -> np.ndarray:
@@ -234,11 +238,13 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
 
 
 def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: dict, rays: np.ndarray,
-                  frames_of: dict, saturated: list, others, own_rows: list, defer: list) -> dict:
+                  frames_of: dict, saturated: list, others, own_rows: list, batches: _Batches) -> dict:
     """``k -> _Draft``: :func:`_estimate_one` (``grow=True``) of the candidates ``ks`` whose ROI values
     are slices of one frame-wide array (``smoothed32``, ``luma_frame`` or ``luma_frame32``); a
-    candidate left out is asked again without it. ``defer``: as :func:`_one_isophote`'s.
+    candidate left out is asked again without it; each draft added to ``batches`` (its ``defer``: as
+    :func:`_one_isophote`'s).
     """
+    defer = batches.defer
     if not ks:
         return {}
     if frame.smoothed32 is not None and frame.smooth_sigma_px > 0:
@@ -269,10 +275,12 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
                 else:
                     defer.append((comps[i], levels.level(isovalues[i]), region, levels, isovalues[i], frame))
                     results[i] = len(defer) - 1
-            out[k] = _Draft(region.bp_uv, region.near_bp, sat, region.roi, rays[k], frames_of[k], results, others, own)
+            out[k] = batches.add(_Draft(region.bp_uv, region.near_bp, sat, region.roi, rays[k], frames_of[k], results,
+                                        others, own))
             continue
-        draft = _estimate_one(frame, bps[k], rois_of[k], saturated=sat, grow=True, other_bps=others, own_bp=own,
-                              bp_ray=rays[k], fitf=frames_of[k], ring=rings_of[k], sm=sm, defer=defer)
+        draft = batches.add(_estimate_one(frame, bps[k], rois_of[k], saturated=sat, grow=True, other_bps=others,
+                                          own_bp=own, bp_ray=rays[k], fitf=frames_of[k], ring=rings_of[k], sm=sm,
+                                          defer=defer))
         if draft is not None:
             out[k] = draft
     return out
@@ -349,6 +357,22 @@ def _first_components(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_o
         out[k] = (_Region(sub, rois_of[k], shape, bps[k], int(ri[j]), int(ci[j]), float(near[j])),
                   _Levels(float(scale[j]), float(offset[j])), got)
     return out
+
+
+class _Batches:
+    """A frame's drafts in the order made (:meth:`add` each), their deferred isophotes contoured
+    (:func:`_resolve`) whenever the boxes pending hold more than :data:`RESOLVE_PENDING_MAX_BYTES`."""
+
+    def __init__(self, defer: list):
+        self.defer, self.made, self.start, self.seen, self.nbytes = defer, [], 0, 0, 0
+
+    def add(self, draft):
+        self.made.append(draft)
+        self.nbytes, self.seen = self.nbytes + sum(d[0][0].nbytes for d in self.defer[self.seen:]), len(self.defer)
+        if self.nbytes > RESOLVE_PENDING_MAX_BYTES:
+            _resolve(self.made[self.start:], self.defer)
+            self.start, self.seen, self.nbytes = len(self.made), 0, 0
+        return draft
 
 
 def _resolve(drafts, defer: list) -> None:
@@ -430,10 +454,11 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
     rings_of = dict(zip(fk.tolist(), rings))
     # a frame smoothed once: every fitted candidate's ROI growth, levels and contour walks
     # (_grown_drafts); those it leaves go through _estimate_one
-    defer: list = []  # every draft's contours in one batch, at the end (_resolve)
+    defer: list = []  # the drafts' contours in batches (_Batches), the last at the end (_resolve)
+    batches = _Batches(defer)
     drafts = _grown_drafts(frame, fk.tolist(), bps, rois_of, rings_of, rays, frames_of,
                            [det.candidates[k].saturated for k in fk.tolist()], others,
-                           [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()], defer)
+                           [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()], batches)
     out = []
     # each candidate's ray a row of the rays, and whether it has one, as Python objects
     ray_rows, ray_ok = list(rays), has_ray.tolist()
@@ -450,8 +475,8 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
                                            detail, ray_rows[k] if ray_ok[k] else None, ()))
             continue
         roi_k = rois_of[k] if k in rois_of else _initial_rois([cand], bp[None], det.threshold, frame)[0]
-        out.append(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
-                                 own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
-                                 fitf=frames_of.get(k), ring=rings_of.get(k), defer=defer))
-    _resolve(out, defer)
+        out.append(batches.add(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
+                                             own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
+                                             fitf=frames_of.get(k), ring=rings_of.get(k), defer=defer)))
+    _resolve(batches.made[batches.start:], defer)
     return out

@@ -211,12 +211,8 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     S = {"res": res, "x_scale": x_scale, "batched": True}
     # the verdict first: a misfit's sigma (its depth valley, the costliest step) only for the fit returned
     est = _quadric_estimate(best, nfev, P, S, rig, nominal_depth_mm, False, max_nfev)
-
-    def first():
-        if est.status != "patch_misfit" or misfit_sigma is False:
-            return est
-        return _quadric_estimate(best, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev)
-
+    first = (lambda: est) if est.status != "patch_misfit" or misfit_sigma is False else (
+        lambda: _quadric_estimate(best, nfev, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev))
     if rig.has_separate_lights and est.status in ("patch_misfit", "not_converged"):
         # the flat starts' basin missed the patch: the depth the coarse profile finds starts a second fit
         coarse = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, _PROFILE_PIXELS, 12)[0] or P
