@@ -18,7 +18,7 @@ from simtest.geometry.cameras import (
     PinholeCamera,
     c3vd_camera,
 )
-from simtest.tolerances import TOL
+from exact_tolerances import EXACT
 
 from _cases import frame_pixels
 
@@ -43,12 +43,12 @@ def round_trip_error(cam: CameraModel, step: float) -> float:
 
 def test_c3vd_round_trip_every_pixel():
     cam = c3vd_camera()
-    assert round_trip_error(cam, 1.0) < TOL.camera_round_trip_px
+    assert round_trip_error(cam, 1.0) < EXACT.camera_round_trip_px
     # sub-pixel positions too
     rng = np.random.default_rng(1)
     W, H = cam.image_size
     uv = np.stack([rng.uniform(0, W - 1, 20000), rng.uniform(0, H - 1, 20000)], axis=1)
-    assert np.abs(cam.ray_to_pixel(cam.pixel_to_ray(uv)) - uv).max() < TOL.camera_round_trip_px
+    assert np.abs(cam.ray_to_pixel(cam.pixel_to_ray(uv)) - uv).max() < EXACT.camera_round_trip_px
 
 
 size = st.tuples(st.integers(16, 900), st.integers(16, 900))
@@ -75,7 +75,7 @@ def test_pinhole_round_trip_whole_frame(size, f_rel, aspect, skew, c_off, k, p, 
     rd = r * (1 + k[0] * r**2 + k[1] * r**4 + k[2] * r**6) / (1 + (0.3 * k[0] if rational else 0) * r**2)
     assume(np.all(np.diff(rd) > 1e-3 * (r[1] - r[0])))
     cam = PinholeCamera(K, dist, (W, H))
-    assert round_trip_error(cam, max(1.0, max(W, H) / 60)) < TOL.camera_round_trip_px
+    assert round_trip_error(cam, max(1.0, max(W, H) / 60)) < EXACT.camera_round_trip_px
 
 
 @settings(max_examples=25, deadline=None)
@@ -92,7 +92,7 @@ def test_fisheye_round_trip_whole_frame(size, f_rel, D):
         cam = FisheyeCamera(K, D, (W, H))
     except IntrinsicsError:
         assume(False)
-    assert round_trip_error(cam, max(1.0, max(W, H) / 60)) < TOL.camera_round_trip_px
+    assert round_trip_error(cam, max(1.0, max(W, H) / 60)) < EXACT.camera_round_trip_px
 
 
 @settings(max_examples=25, deadline=None)
@@ -112,7 +112,7 @@ def test_omnidirectional_round_trip_whole_frame(scale, poly, a1, cde, shift):
         cam = OmnidirectionalCamera((W - 1) / 2 + shift[0] * scale, (H - 1) / 2 + shift[1] * scale, a, *cde, (W, H))
     except IntrinsicsError:
         assume(False)
-    assert round_trip_error(cam, max(1.0, max(W, H) / 60)) < TOL.camera_round_trip_px
+    assert round_trip_error(cam, max(1.0, max(W, H) / 60)) < EXACT.camera_round_trip_px
 
 
 # ------------------------------------------------------------------------ against other sources
@@ -193,7 +193,7 @@ def test_jacobians_match_finite_differences(cam):
     h = 1e-3  # px
     fd = np.stack([(cam.pixel_to_ray(uv + e * h) - cam.pixel_to_ray(uv - e * h)) / (2 * h) for e in np.eye(2)], axis=2)
     scale = np.abs(J).max(axis=(1, 2), keepdims=True)
-    assert np.all(np.abs(J - fd) <= TOL.camera_jacobian_rel * scale)
+    assert np.all(np.abs(J - fd) <= EXACT.camera_jacobian_rel * scale)
     rays = cam.pixel_to_ray(uv)
     np.testing.assert_allclose(np.einsum("ni,nij->nj", rays, J), 0.0, atol=1e-12)  # unit rays
     s = rng.uniform(0.5, 3.0, (len(uv), 1))
@@ -202,7 +202,7 @@ def test_jacobians_match_finite_differences(cam):
     h = 1e-5
     fd = np.stack([(cam.ray_to_pixel(rays * s + e * h) - cam.ray_to_pixel(rays * s - e * h)) / (2 * h) for e in np.eye(3)], axis=2)
     scale = np.abs(JP).max(axis=(1, 2), keepdims=True)
-    assert np.all(np.abs(JP - fd) <= TOL.camera_jacobian_rel * scale)
+    assert np.all(np.abs(JP - fd) <= EXACT.camera_jacobian_rel * scale)
     assert np.all(np.abs(np.einsum("nij,nj->ni", JP, rays * s)) <= 1e-9 * scale[:, :, 0])
     # the two are inverse on the tangent plane
     np.testing.assert_allclose(JP @ J * s[:, :, None], np.broadcast_to(np.eye(2), (len(uv), 2, 2)), atol=1e-9)

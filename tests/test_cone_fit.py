@@ -23,7 +23,7 @@ from simtest.geometry.conics import circle_pose, plane_basis
 from simtest.reconstruct import reconstruct_roi
 from simtest.reconstruct.cone_fit import fit_cones, fit_frame, fit_frames, rotations_to_z
 from simtest.simulate.analytic import phong_plane_image
-from simtest.tolerances import TOL
+from exact_tolerances import EXACT
 
 #: The must-hold of the issue: plane normal through C3VD's omnidirectional model.
 OMNI_PLANE_DEG = 0.05
@@ -70,8 +70,8 @@ def test_circle_through_any_model_gives_its_plane_normal(cam_i, off_axis, azimut
     assert np.abs(np.einsum("ni,ij,nj->n", rays, fit.cone, rays)).max() < 1e-9
     pose = circle_pose(fit.cone)
     err = min(angle_between_deg(n, normal) for n in np.vstack([pose.normals, -pose.normals]))
-    # a 6x6 fit of exact points: TOL.fitted_normal_deg, scaled by the pixel round trip (<1e-9 px)
-    assert err < 10 * TOL.fitted_normal_deg
+    # a 6x6 fit of exact points: EXACT.fitted_normal_deg, scaled by the pixel round trip (<1e-9 px)
+    assert err < 10 * EXACT.fitted_normal_deg
 
 
 def test_rotations_to_z():

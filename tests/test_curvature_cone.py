@@ -14,9 +14,9 @@ from simtest.geometry.curvature import (
     predicted_eigenvalue_gap,
     predicted_pose_error_deg,
 )
-from simtest.tolerances import TOL
+from exact_tolerances import EXACT
 
-GAMMA0_DEG = 0.1  # cone half-angle of the isophote; TOL.small_isophote_gap_abs says why
+GAMMA0_DEG = 0.1  # cone half-angle of the isophote; EXACT.small_isophote_gap_abs says why
 
 
 def isophote_cone(k1, k2, d, gamma0_deg=GAMMA0_DEG, n=48):
@@ -50,15 +50,15 @@ curv = st.floats(-0.05, 0.2)
 @given(curv, curv, st.floats(10.0, 50.0))
 def test_gap_is_one_minus_rho_squared_and_the_axis_is_the_normal(ka, kb, d):
     k1, k2 = max(ka, kb), min(ka, kb)
-    assume(min(abs(1 + k1 * d), abs(1 + k2 * d)) >= 0.25)  # see TOL.small_isophote_gap_abs
+    assume(min(abs(1 + k1 * d), abs(1 + k2 * d)) >= 0.25)  # see EXACT.small_isophote_gap_abs
     rho = curvature_ratio(k1, k2, d)
     Cn = isophote_cone(k1, k2, d)
     ca = cone_axis(Cn)
-    assert abs(ca.eigenvalue_gap - predicted_eigenvalue_gap(rho)) < TOL.small_isophote_gap_abs
+    assert abs(ca.eigenvalue_gap - predicted_eigenvalue_gap(rho)) < EXACT.small_isophote_gap_abs
     # the cone axis is the normal at the BP, which is minus the optical axis here
-    assert np.degrees(np.arccos(min(1.0, -ca.axis[2]))) < TOL.fitted_normal_deg
+    assert np.degrees(np.arccos(min(1.0, -ca.axis[2]))) < EXACT.fitted_normal_deg
     # N+ and N- leave it by asin(sqrt(gap)): compared as sin^2 of the angle, where the gap's
     # tolerance applies as it is (the angle itself is ill-conditioned near gap 0)
     err = np.arccos(np.clip(-circle_pose(Cn).normals[:, 2], -1, 1))
     predicted = np.radians(predicted_pose_error_deg(rho))
-    assert np.all(np.abs(np.sin(err) ** 2 - np.sin(predicted) ** 2) < TOL.small_isophote_gap_abs)
+    assert np.all(np.abs(np.sin(err) ** 2 - np.sin(predicted) ** 2) < EXACT.small_isophote_gap_abs)

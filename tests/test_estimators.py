@@ -22,7 +22,7 @@ from simtest.reconstruct.estimators import (
     select_paper_normal,
 )
 from simtest.reconstruct.failures import Failure
-from simtest.tolerances import TOL
+from exact_tolerances import EXACT
 
 from _cases import ellipse_to_conic, random_circle_pose
 
@@ -46,7 +46,7 @@ def test_exact_circle_one_paper_normal_is_true(seed):
     bp_ray = bp_ray_normal(project_points(centre, K), K)
     est = estimate_from_conic(Cn, bp_ray)
     assert est
-    assert angle_between_deg(est.paper, normal).min() < TOL.exact_normal_deg
+    assert angle_between_deg(est.paper, normal).min() < EXACT.exact_normal_deg
     # all normals unit and facing the camera along the BP ray
     for n in (*est.paper, est.cone_axis, est.paper_selected):
         assert abs(np.linalg.norm(n) - 1) < 1e-12
@@ -65,15 +65,15 @@ def test_co_located_circles_give_the_normal_by_every_estimator(seed, radius):
     Cn = normalised_conic(project_circle(foot, normal, radius, K), K)
     bp_ray = bp_ray_normal(project_points(foot, K), K)
     est = estimate_from_conic(Cn, bp_ray)
-    assert angle_between_deg(est.cone_axis, normal) < TOL.exact_normal_deg
+    assert angle_between_deg(est.cone_axis, normal) < EXACT.exact_normal_deg
     # N+ and N- sit at asin(sqrt(gap)) from the axis: near a right cone a rounding-level gap
     # (~1e-16) still tilts them by ~1e-8 rad (sqrt sensitivity of the paper's estimator), so they
     # are held to that bound instead of the closed-form tolerance.
-    bound = np.degrees(np.arcsin(np.sqrt(est.eigenvalue_gap))) + TOL.exact_normal_deg
+    bound = np.degrees(np.arcsin(np.sqrt(est.eigenvalue_gap))) + EXACT.exact_normal_deg
     assert angle_between_deg(est.paper, normal).max() < bound
     assert bound < 1e-5
-    assert angle_between_deg(bp_ray, normal) < TOL.exact_normal_deg
-    assert est.eigenvalue_gap < TOL.right_cone_gap
+    assert angle_between_deg(bp_ray, normal) < EXACT.exact_normal_deg
+    assert est.eigenvalue_gap < EXACT.right_cone_gap
 
 
 @given(st.integers(0, 10_000), st.lists(st.floats(1.0, 60.0), min_size=2, max_size=5, unique=True))
@@ -85,7 +85,7 @@ def test_joint_axis_of_nested_co_located_circles_is_the_normal(seed, radii):
     # signs and scales of the conics must not matter
     cns = [(-1) ** i * (i + 1) * c for i, c in enumerate(cns)]
     axis = joint_cone_axis(cns, bp_ray)
-    assert angle_between_deg(axis, normal) < TOL.exact_normal_deg
+    assert angle_between_deg(axis, normal) < EXACT.exact_normal_deg
     assert axis @ (-bp_ray) < 0
 
 
@@ -131,7 +131,7 @@ def test_ellipse_conic_in_pixels_through_K():
     # A pixel-space ellipse centred on the principal point is a cone about the optical axis.
     C = ellipse_to_conic((202.5, 190.5), (30.0, 30.0 * 300 / 320), 0.0)
     est = estimate_from_conic(normalised_conic(C, K), np.array([0.0, 0.0, -1.0]))
-    assert angle_between_deg(est.cone_axis, [0, 0, -1]) < TOL.exact_normal_deg
+    assert angle_between_deg(est.cone_axis, [0, 0, -1]) < EXACT.exact_normal_deg
 
 
 @given(st.integers(0, 10_000))

@@ -17,7 +17,7 @@ from simtest.geometry import (
     project_circle,
 )
 from simtest.reconstruct.fit import fit_ellipse, fit_ellipses
-from simtest.tolerances import TOL
+from exact_tolerances import EXACT
 
 from _cases import ellipse_to_conic, random_circle_pose, sample_ellipse
 
@@ -67,7 +67,7 @@ def test_exact_points_give_the_ellipse(cu, cv, a, ratio, angle, n):
 def test_fitted_points_of_an_imaged_circle_give_the_true_normal(seed):
     # Fit-level half of the exact-circle truth (the conic-level half is in test_geometry.py):
     # points sampled exactly on the image of a circle under a random pose, fitted, then
-    # circle pose: one of N+ and N- is the true normal to TOL.fitted_normal_deg.
+    # circle pose: one of N+ and N- is the true normal to EXACT.fitted_normal_deg.
     centre, normal, radius, rng = random_circle_pose(seed, key=42)
     C = project_circle(centre, normal, radius, K)
     ellipse = conic_to_ellipse(C)
@@ -75,7 +75,7 @@ def test_fitted_points_of_an_imaged_circle_give_the_true_normal(seed):
     fit = fit_ellipse(pts)
     assert fit
     pose = circle_pose(normalised_conic(fit.conic, K))
-    assert angle_between_deg(pose.normals, normal).min() < TOL.fitted_normal_deg
+    assert angle_between_deg(pose.normals, normal).min() < EXACT.fitted_normal_deg
 
 
 def test_fit_is_translation_equivariant_far_from_the_origin():

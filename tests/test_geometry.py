@@ -26,7 +26,7 @@ from simtest.geometry import (
     save_intrinsics,
     validate_intrinsics,
 )
-from simtest.tolerances import TOL
+from exact_tolerances import EXACT
 
 from _cases import ellipse_to_conic, random_circle_pose, sample_ellipse, undistort_points
 
@@ -41,10 +41,10 @@ def test_circle_pose_exact_conic_gives_true_normal(seed):
     C = project_circle(centre, normal, radius, K)
     pose = circle_pose(normalised_conic(C, K))
     errors = angle_between_deg(pose.normals, normal)
-    assert errors.min() < TOL.exact_normal_deg
+    assert errors.min() < EXACT.exact_normal_deg
     # the matching solution also gives the direction of the circle centre
     best = int(np.argmin(errors))
-    assert angle_between_deg(pose.centres[best], centre) < TOL.exact_normal_deg
+    assert angle_between_deg(pose.centres[best], centre) < EXACT.exact_normal_deg
     # both normals face the camera
     assert np.all(pose.normals @ (centre / np.linalg.norm(centre)) < 0)
 
@@ -62,13 +62,13 @@ def test_co_located_circle_gives_right_cone_with_normal_axis(seed):
     C = project_circle(-d * normal, normal, rng.uniform(0.05, 0.8) * d, K)
     Cn = normalised_conic(C, K)
     ca = cone_axis(Cn)
-    assert angle_between_deg(ca.axis, normal) < TOL.exact_normal_deg
-    assert ca.eigenvalue_gap < TOL.right_cone_gap
+    assert angle_between_deg(ca.axis, normal) < EXACT.exact_normal_deg
+    assert ca.eigenvalue_gap < EXACT.right_cone_gap
     pose = circle_pose(Cn)
     # Both circle-pose normals coincide with the axis, up to the conditioning of circle pose near a
     # right cone: they tilt by asin(sqrt(gap)), so rounding of order 1e-16 in the eigenvalues shows
     # as ~1e-8 rad, and a gap at the right-cone threshold as sqrt(1e-9) rad = 1.8e-3 deg.
-    bound_deg = np.degrees(np.arcsin(np.sqrt(TOL.right_cone_gap)))
+    bound_deg = np.degrees(np.arcsin(np.sqrt(EXACT.right_cone_gap)))
     assert np.all(angle_between_deg(pose.normals, normal) < bound_deg)
 
 

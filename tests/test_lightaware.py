@@ -24,6 +24,7 @@ from _quadrics import phong_sphere_image
 from simtest.simulate.analytic import phong_plane_image
 from simtest.simulate.offset import rig_plane_image, specular_point
 from simtest.tolerances import TOL
+from exact_tolerances import EXACT
 
 ISOVALUES = (0.3, 0.6)
 ROUGHNESS = 60.0
@@ -185,8 +186,8 @@ def test_isocurve_fit_exact_plane(h, tilt):
     img, K, N, depth, bp = plane_case(h, tilt, rig)
     est = la.isocurve_fit(isophote_points(img, bp), ISOVALUES, bp, K, rig)
     assert est.ok, (est.status, est.detail)
-    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
-    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    assert angle_between_deg(est.normal, N) < EXACT.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < EXACT.exact_image_depth_rel
     assert np.isclose(est.roughness, ROUGHNESS, rtol=1e-3)
 
 
@@ -197,8 +198,8 @@ def test_photometric_fit_exact_plane_with_falloff(h, tilt):
     roi, origin = roi_around(img, bp, 60)
     est = la.photometric_fit(roi, origin, bp, K, rig)
     assert est.ok, (est.status, est.detail)
-    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
-    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    assert angle_between_deg(est.normal, N) < EXACT.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < EXACT.exact_image_depth_rel
     assert np.isclose(est.roughness, ROUGHNESS, rtol=1e-6)
 
 
@@ -208,8 +209,8 @@ def test_photometric_fit_leaves_out_clipped_pixels():
     clipped = np.minimum(img * 1.6, 1.0)  # a saturated plateau at the top of the lobe
     roi, origin = roi_around(clipped, bp, 60)
     est = la.photometric_fit(roi, origin, bp, K, rig, clip_level=1.0)
-    assert est.ok and angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
-    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    assert est.ok and angle_between_deg(est.normal, N) < EXACT.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < EXACT.exact_image_depth_rel
 
 
 def test_two_light_merged_highlight_photometric_fit():
@@ -221,14 +222,14 @@ def test_two_light_merged_highlight_photometric_fit():
     assert extract_isophote(img, 0.5 * img.max(), project_points(unit(-N), K))
     bp_img = np.array(np.unravel_index(np.argmax(img), img.shape)[::-1], dtype=float)
     est = la.photometric_fit(roi, origin, bp_img, K, rig)
-    assert est.has_normal and angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
+    assert est.has_normal and angle_between_deg(est.normal, N) < EXACT.exact_image_normal_deg
     # the depth reported is that of the rig's mean light (here the camera centre): not observable
     # from the mean alone, but the two lights' spread fixes the scale
     Xm, dm = specular_point(N, 30.0, (0.0, 0.0, 0.0))
-    assert est.depth_mm is not None and abs(est.depth_mm / dm - 1) < TOL.exact_image_depth_rel
+    assert est.depth_mm is not None and abs(est.depth_mm / dm - 1) < EXACT.exact_image_depth_rel
     # and each light's specular point, which is what a highlight of that light is scored against
     for L, d in zip(rig.lights, est.light_depths_mm, strict=True):
-        assert abs(d / specular_point(N, 30.0, L.position_mm)[1] - 1) < TOL.exact_image_depth_rel
+        assert abs(d / specular_point(N, 30.0, L.position_mm)[1] - 1) < EXACT.exact_image_depth_rel
 
 
 @pytest.mark.parametrize("half", [25, 40, 60])
@@ -247,11 +248,11 @@ def test_photometric_fit_gives_each_lights_depth_at_large_offsets(offset, tilt, 
     roi, origin = roi_around(img, bp, half)
     est = la.photometric_fit(roi, origin, bp, K, rig)
     assert est.ok, (est.status, est.detail)
-    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
-    assert abs(est.light_depths_mm[0] / depth - 1) < TOL.exact_image_depth_rel
+    assert angle_between_deg(est.normal, N) < EXACT.exact_image_normal_deg
+    assert abs(est.light_depths_mm[0] / depth - 1) < EXACT.exact_image_depth_rel
     assert abs(est.light_depths_mm[1] / specular_point(N, 20.0, rig.lights[1].position_mm)[1] - 1) \
-        < TOL.exact_image_depth_rel
-    assert abs(est.depth_mm / specular_point(N, 20.0, (0.0, 0.0, 0.0))[1] - 1) < TOL.exact_image_depth_rel
+        < EXACT.exact_image_depth_rel
+    assert abs(est.depth_mm / specular_point(N, 20.0, (0.0, 0.0, 0.0))[1] - 1) < EXACT.exact_image_depth_rel
     # a withdrawn depth withdraws every light's
     gone = est.without_depth("plane_misfit", "test")
     assert gone.depth_mm is None and gone.light_depths_mm is None and gone.distance_mm is None
@@ -277,7 +278,7 @@ def test_colocated_depth_is_null_and_normal_as_good_as_cone_axis(tilt):
                 la.photometric_fit(*roi_around(img, bp, 60), bp, K, rig)):
         assert est.status == "depth_not_observable", est
         assert est.depth_mm is None and est.distance_mm is None
-        assert angle_between_deg(est.normal, N) <= cone_err + TOL.exact_image_normal_deg
+        assert angle_between_deg(est.normal, N) <= cone_err + EXACT.exact_image_normal_deg
 
 
 def test_isocurve_fit_refuses_a_two_light_rig_and_names_bad_input():
@@ -368,8 +369,8 @@ def test_photometric_fit_supersampled_model_matches_a_box_filtered_image():
     bp = project_points(X, K)
     est = la.photometric_fit(img, (0, 0), bp, K, rig, supersample=3)
     assert est.ok, est
-    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
-    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    assert angle_between_deg(est.normal, N) < EXACT.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < EXACT.exact_image_depth_rel
     # the point-sampled model on the same image is not exact
     point = la.photometric_fit(img, (0, 0), bp, K, rig)
     assert angle_between_deg(point.normal, N) > 10 * angle_between_deg(est.normal, N)
@@ -407,9 +408,9 @@ def test_quadric_fit_is_exact_on_a_sphere_where_the_plane_model_misfits():
     # and misses the normal by degrees; the patch (with its mean-curvature z^2 term) is exact on
     # a sphere, so an exact image gives the normal, the depth (the band's geometric centre),
     # the curvature and the roughness
-    assert angle_between_deg(quad.normal, n) < TOL.exact_image_normal_deg
-    assert abs(np.sqrt(near * far) / np.linalg.norm(X) - 1) < TOL.exact_image_depth_rel
-    assert abs(quad.roughness / 30.0 - 1) < TOL.exact_image_depth_rel
+    assert angle_between_deg(quad.normal, n) < EXACT.exact_image_normal_deg
+    assert abs(np.sqrt(near * far) / np.linalg.norm(X) - 1) < EXACT.exact_image_depth_rel
+    assert abs(quad.roughness / 30.0 - 1) < EXACT.exact_image_depth_rel
     assert angle_between_deg(plane.normal, n) > 1.0
 
 
@@ -496,14 +497,14 @@ def test_cubic_patch_fit_is_exact_on_a_sphere_under_two_lights(eps):
     assert est.ok, est
     # the apex is the mean light's specular point: with the rig symmetric about the lens, the
     # point whose normal points at the camera, on the line from the camera to the centre
-    assert angle_between_deg(est.normal, unit(-SPHERE_C)) < TOL.exact_image_normal_deg
-    assert abs(est.depth_mm / (np.linalg.norm(SPHERE_C) - SPHERE_R) - 1) < TOL.exact_image_depth_rel
+    assert angle_between_deg(est.normal, unit(-SPHERE_C)) < EXACT.exact_image_normal_deg
+    assert abs(est.depth_mm / (np.linalg.norm(SPHERE_C) - SPHERE_R) - 1) < EXACT.exact_image_depth_rel
     # each light's specular point on the fitted patch is the sphere's (the patch, with its
     # third-order terms 0 and its z^2 term, is exact on a sphere)
     for j, L in enumerate(lights):
         X, n = sphere_specular_point(L)
-        assert angle_between_deg(est.light_normals[j], n) < TOL.exact_image_normal_deg
-        assert abs(est.light_depths_mm[j] / np.linalg.norm(X) - 1) < TOL.exact_image_depth_rel
+        assert angle_between_deg(est.light_normals[j], n) < EXACT.exact_image_normal_deg
+        assert abs(est.light_depths_mm[j] / np.linalg.norm(X) - 1) < EXACT.exact_image_depth_rel
     assert est.depth_rel_sigma < TOL.depth_rel_sigma_max
 
 
@@ -522,8 +523,8 @@ def test_quadric_fit_gives_each_lights_specular_point_on_a_sphere_under_two_ligh
     for j, L in enumerate(lights):
         X, n = sphere_specular_point(L)
         assert angle_between_deg(est.normal, n) > 1.0  # the apex's normal is not this light's
-        assert angle_between_deg(est.light_normals[j], n) < TOL.exact_image_normal_deg
-        assert abs(est.light_depths_mm[j] / np.linalg.norm(X) - 1) < TOL.exact_image_depth_rel
+        assert angle_between_deg(est.light_normals[j], n) < EXACT.exact_image_normal_deg
+        assert abs(est.light_depths_mm[j] / np.linalg.norm(X) - 1) < EXACT.exact_image_depth_rel
     # under one light the depth is not observable, and with it where a specular point lies
     img1, rig1, bp1 = sphere_rig_case(lights[1:])
     one = la.quadric_fit(img1, (0, 0), bp1, SPHERE_K, rig1, nominal_depth_mm=20.0)
@@ -659,8 +660,8 @@ def test_a_megapixel_roi_is_refined_on_a_bounded_sub_grid():
     assert est.ok, (est.status, est.detail)
     assert est.n_residuals <= REFINE_MAX_PIXELS
     assert est.n_residuals > REFINE_MAX_PIXELS // 4  # the refinement ran (the starts take 16384)
-    assert angle_between_deg(est.normal, N) < TOL.exact_image_normal_deg
-    assert abs(est.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    assert angle_between_deg(est.normal, N) < EXACT.exact_image_normal_deg
+    assert abs(est.depth_mm / depth - 1) < EXACT.exact_image_depth_rel
 
 
 def test_an_iterate_that_runs_off_is_stopped_where_it_left():

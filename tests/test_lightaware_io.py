@@ -19,7 +19,7 @@ from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import recommend
 from simtest.reconstruct.light_fits import with_light_aware
 from simtest.reconstruct.settings import ReconSettings
-from simtest.tolerances import TOL
+from exact_tolerances import EXACT
 from test_lightaware import one_light, plane_case
 
 runner = CliRunner()
@@ -38,8 +38,8 @@ def test_recommended_normal_with_an_offset_rig():
     img, K, N, depth, ests = _estimates(rig)
     rec = recommend(ests[0])
     assert rec.normal_from == "photometric_fit"
-    assert angle_between_deg(rec.normal, N) < TOL.exact_image_normal_deg
-    assert abs(rec.depth_mm / depth - 1) < TOL.exact_image_depth_rel
+    assert angle_between_deg(rec.normal, N) < EXACT.exact_image_normal_deg
+    assert abs(rec.depth_mm / depth - 1) < EXACT.exact_image_depth_rel
     assert rec.normal_sigma_deg is not None and rec.normal_sigma_deg >= 0
     # the baselines are still there, and err by about half the angle the offset subtends
     assert angle_between_deg(ests[0].bp_ray, N) > 1.0
@@ -120,8 +120,8 @@ def test_cli_reads_the_rig_from_the_camera_file(tmp_path):
     assert res.exit_code == 0, res.output
     spec = read_estimates(tmp_path / "out" / "estimates.json")["specularities"][0]
     assert spec["normal_from"] == "photometric_fit"
-    assert angle_between_deg(spec["normal"], N) < TOL.exact_image_normal_deg
-    assert abs(spec["depth_mm"] / depth - 1) < TOL.exact_image_depth_rel
+    assert angle_between_deg(spec["normal"], N) < EXACT.exact_image_normal_deg
+    assert abs(spec["depth_mm"] / depth - 1) < EXACT.exact_image_depth_rel
 
 
 def test_estimates_json_carries_the_per_light_normals_of_a_two_light_patch(tmp_path):
