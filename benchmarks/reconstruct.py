@@ -17,6 +17,8 @@ Rows (:func:`bench_reconstruct`), one core unless said:
   (every core, not one);
 - the light-aware fits per highlight (``isocurve_fit``, ``photometric_fit``, ``cubic_patch_fit``) and on a real tile
   with an assumed rig;
+- MB, the peak memory of ``simtest reconstruct`` of the banner under the paper's settings, in a
+  fresh process (``--repeat`` 5 and over; :func:`_bench_paper_memory`);
 - ms for a rendered 1350 x 1080 colonoscope frame (the bundled ``colonoscope_tube`` scene at seed 0,
   through its own camera model), and for that frame with its camera file's lights and response,
   light-aware fits included, as ``simtest reconstruct -k camera.json`` runs it.
@@ -41,7 +43,7 @@ from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmarks.inputs import (VIDEO_FRAMES, VIDEO_STEP_PX, banner_frame, banner_mosaic, bench_video_file,
+from benchmarks.inputs import (BANNER, VIDEO_FRAMES, VIDEO_STEP_PX, banner_frame, banner_mosaic, bench_video_file,
                                colonoscope_frame, colonoscope_render, noisy_frame, real_frame,
                                synthetic_frame, synthetic_offset_highlight, synthetic_roi_image,
                                synthetic_sphere_two_guides, video_first_frame)
@@ -243,6 +245,7 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
     out += _bench_video(VIDEO_FRAMES if repeat >= 5 else 4)  # a quick look: 4 frames
     out += _bench_light_aware(repeat)
     out += _bench_real_tile_rig(repeat)
+    out += _bench_paper_memory() if repeat >= 5 else []  # (a fresh process of several seconds)
     # Last: the render leaves Mitsuba's memory and threads in the process.
     res = colonoscope_render()
     # "scene colonoscope": the row's name from before the rename; its input is colonoscope_tube,
@@ -329,6 +332,46 @@ def _bench_video(n_frames: int = VIDEO_FRAMES) -> list[BenchResult]:
                         f"{statistics.median(examined) if examined else 0:.0f} candidates (median; MJPG's "
                         f"blocks add bright components); CPU {got['cpu_s'] / max(n, 1) * 1e3:.0f} ms a frame, "
                         f"the process and its workers")]
+
+
+#: The paper's settings as ``simtest reconstruct`` takes them (the README's line).
+PAPER_SETTINGS = ("--detection", "full_scale", "--normalise", "bp", "-t", "0.1", "--smooth", "0")
+
+#: Target of :func:`_bench_paper_memory`'s row, MB: the banner's whole luma in float64 is 15 MB; the deferred
+#: isophotes' boxes, contoured in batches of at most 256 MiB (``isophotes.RESOLVE_PENDING_MAX_BYTES``), and the
+#: libraries' own (about 200 MB with no work) stay well below 1 GB. It held 1.67 GB before the batches.
+PAPER_PEAK_TARGET_MB = 1024.0
+
+
+def _bench_paper_memory(path=None) -> list[BenchResult]:
+    """Peak memory (the process's max RSS, MB) of ``simtest reconstruct`` of the banner (``path``: another
+    real frame) under :data:`PAPER_SETTINGS` with its assumed pinhole (:func:`~benchmarks.inputs.real_frame`),
+    in a fresh interpreter on one worker: at a tenth of its BP an isophote can span much of the frame. Its
+    wall, and what it found, in the note."""
+    name = ("per real frame under the paper's settings (`--detection full_scale --normalise bp -t 0.1 "
+            "--smooth 0`): peak memory of `simtest reconstruct`, a fresh process")
+    got = real_frame(BANNER if path is None else Path(path))
+    if got is None:
+        return [BenchResult("reconstruct", name + " (source tree not found)", float("nan"), "MB", PAPER_PEAK_TARGET_MB)]
+    img, K = got
+    code = ("import resource, runpy, sys; sys.argv = ['simtest'] + sys.argv[1:]\n"
+            "try:\n    runpy.run_module('simtest.cli', run_name='__main__')\nexcept SystemExit as e:\n"
+            "    code = e.code\nprint(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, code)")
+    with tempfile.TemporaryDirectory() as tmp:
+        cam = Path(tmp) / "intrinsics.json"
+        cam.write_text(json.dumps({"K": K.tolist(), "image_size": [img.shape[1], img.shape[0]]}))
+        t0 = time.perf_counter()
+        proc = subprocess.run([sys.executable, "-c", code, "reconstruct", str(BANNER if path is None else path),
+                               "-k", str(cam), *PAPER_SETTINGS, "-j", "1", "-o", str(Path(tmp) / "out")],
+                              capture_output=True, text=True, env=clone_env(**SINGLE_THREAD_ENV))
+        wall = time.perf_counter() - t0
+    last = (proc.stdout.strip().splitlines() or [""])[-1].split()
+    if proc.returncode or len(last) != 2 or last[1] not in ("0", "None"):
+        said = (proc.stderr.strip().splitlines() or [""])[-1]
+        return [BenchResult("reconstruct", name + f" (failed: {said})", float("nan"), "MB", PAPER_PEAK_TARGET_MB)]
+    found = next((ln.strip() for ln in proc.stdout.splitlines() if "candidate(s)" in ln), "")
+    return [BenchResult("reconstruct", name, int(last[0]) / 1024.0, "MB", PAPER_PEAK_TARGET_MB, None,
+                        f"wall {wall:.3g} s; {found.split(' -> ')[0]}")]
 
 
 def _opencv_row(fn: Callable[[], object], repeat: int) -> BenchResult:

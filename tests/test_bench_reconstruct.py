@@ -306,3 +306,15 @@ def test_the_video_row_runs_on_every_core_even_when_the_bench_is_pinned_to_one()
         assert os.sched_getaffinity(0) == {min(saved)}
     finally:
         os.sched_setaffinity(0, saved)
+
+
+def test_the_paper_settings_memory_row_reads_a_fresh_processs_peak(tmp_path):
+    # the row's machinery on a small real tile (the banner's run is the bench's, at --repeat 5 and over):
+    # a fresh `simtest reconstruct` under the paper's settings, its own max RSS and what it found
+    tile = ROOT / "tests" / "data" / "real" / "hyperkvasir_tile_r1c7_mucosa.png"
+    (row,) = rbench._bench_paper_memory(tile)
+    assert row.unit == "MB" and row.target == rbench.PAPER_PEAK_TARGET_MB
+    assert 50.0 < row.value < row.target, row  # an interpreter with numpy and OpenCV holds tens of MB
+    assert "candidate(s)" in row.note and "wall" in row.note
+    (missing,) = rbench._bench_paper_memory(tmp_path / "none.png")
+    assert np.isnan(missing.value) and "not found" in missing.name
