@@ -344,24 +344,26 @@ PAPER_PEAK_TARGET_MB = 1024.0
 
 
 def _bench_paper_memory(path=None) -> list[BenchResult]:
-    """Peak memory (the process's max RSS, MB) of ``simtest reconstruct`` of the banner (``path``: another
-    real frame) under :data:`PAPER_SETTINGS` with its assumed pinhole (:func:`~benchmarks.inputs.real_frame`),
-    in a fresh interpreter on one worker: at a tenth of its BP an isophote can span much of the frame. Its
-    wall, and what it found, in the note."""
+    """Peak memory (the process's peak RSS, Linux's VmHWM, MB) of ``simtest reconstruct`` of the banner
+    (``path``: another real frame) under :data:`PAPER_SETTINGS` with its assumed pinhole
+    (:func:`~benchmarks.inputs.real_frame`), in a fresh interpreter on one worker: at a tenth of its BP an
+    isophote can span much of the frame. Its wall, and what it found, in the note."""
     name = ("per real frame under the paper's settings (`--detection full_scale --normalise bp -t 0.1 "
             "--smooth 0`): peak memory of `simtest reconstruct`, a fresh process")
-    got = real_frame(BANNER if path is None else Path(path))
+    path = BANNER if path is None else Path(path)
+    got = real_frame(path)
     if got is None:
         return [BenchResult("reconstruct", name + " (source tree not found)", float("nan"), "MB", PAPER_PEAK_TARGET_MB)]
     img, K = got
-    code = ("import resource, runpy, sys; sys.argv = ['simtest'] + sys.argv[1:]\n"
-            "try:\n    runpy.run_module('simtest.cli', run_name='__main__')\nexcept SystemExit as e:\n"
-            "    code = e.code\nprint(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, code)")
+    # VmHWM, the peak of this program's own memory: ru_maxrss would keep the parent's size at the fork
+    code = ("import re, runpy, sys; sys.argv = ['simtest'] + sys.argv[1:]\ntry:\n"
+            "    runpy.run_module('simtest.cli', run_name='__main__')\nexcept SystemExit as e:\n    code = e.code\n"
+            "print(re.search(r'VmHWM:\\s*(\\d+)', open('/proc/self/status').read()).group(1), code)")
     with tempfile.TemporaryDirectory() as tmp:
         cam = Path(tmp) / "intrinsics.json"
         cam.write_text(json.dumps({"K": K.tolist(), "image_size": [img.shape[1], img.shape[0]]}))
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-c", code, "reconstruct", str(BANNER if path is None else path),
+        proc = subprocess.run([sys.executable, "-c", code, "reconstruct", str(path),
                                "-k", str(cam), *PAPER_SETTINGS, "-j", "1", "-o", str(Path(tmp) / "out")],
                               capture_output=True, text=True, env=clone_env(**SINGLE_THREAD_ENV))
         wall = time.perf_counter() - t0

@@ -312,9 +312,12 @@ def test_the_paper_settings_memory_row_reads_a_fresh_processs_peak(tmp_path):
     # the row's machinery on a small real tile (the banner's run is the bench's, at --repeat 5 and over):
     # a fresh `simtest reconstruct` under the paper's settings, its own max RSS and what it found
     tile = ROOT / "tests" / "data" / "real" / "hyperkvasir_tile_r1c7_mucosa.png"
+    ballast = np.ones((100, 1024, 1024))  # 800 MB in this process: a child's ru_maxrss would start there
     (row,) = rbench._bench_paper_memory(tile)
+    del ballast
     assert row.unit == "MB" and row.target == rbench.PAPER_PEAK_TARGET_MB
-    assert 50.0 < row.value < row.target, row  # an interpreter with numpy and OpenCV holds tens of MB
+    # the child's own peak: an interpreter with numpy and OpenCV holds tens of MB, the tile's work little more
+    assert 50.0 < row.value < 400.0, row
     assert "candidate(s)" in row.note and "wall" in row.note
     (missing,) = rbench._bench_paper_memory(tmp_path / "none.png")
     assert np.isnan(missing.value) and "not found" in missing.name
