@@ -310,7 +310,7 @@ def test_the_video_row_runs_on_every_core_even_when_the_bench_is_pinned_to_one()
 
 def test_the_paper_settings_memory_row_reads_a_fresh_processs_peak(tmp_path):
     # the row's machinery on a small real tile (the banner's run is the bench's, at --repeat 5 and over):
-    # a fresh `simtest reconstruct` under the paper's settings, its own max RSS and what it found
+    # a fresh `simtest reconstruct` under the paper's settings, its own peak memory and what it found
     tile = ROOT / "tests" / "data" / "real" / "hyperkvasir_tile_r1c7_mucosa.png"
     ballast = np.ones((100, 1024, 1024))  # 800 MB in this process: a child's ru_maxrss would start there
     (row,) = rbench._bench_paper_memory(tile)
