@@ -26,7 +26,7 @@ from simtest.reconstruct.settings import Normalisation
 
 _TINY, _ONE_TAP = float(np.finfo(float).tiny), np.ones(1)
 
-#: Isophotes ``reconstruct_rois`` contours in one batch (:func:`_resolve`).
+#: Isophotes ``reconstruct_rois`` contours in one batch (:class:`_Batches`): its items' images wait with them.
 RESOLVE_BATCH_ISOPHOTES = 256
 #: Fewer isophotes than this, in boxes of fewer px than the next, are contoured one by one.
 RESOLVE_BATCH_MIN = 32
@@ -360,19 +360,25 @@ def _first_components(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_o
 
 
 class _Batches:
-    """A frame's drafts in the order made (:meth:`add` each), their deferred isophotes contoured
-    (:func:`_resolve`) whenever the boxes pending hold more than :data:`RESOLVE_PENDING_MAX_BYTES`."""
+    """Drafts in the order made (:meth:`add` each), their deferred isophotes (``defer``) contoured
+    (:func:`_resolve`) whenever the boxes pending hold more than :data:`RESOLVE_PENDING_MAX_BYTES` or, with
+    ``max_isophotes``, that many isophotes wait; :meth:`finish` contours the rest."""
 
-    def __init__(self, defer: list):
-        self.defer, self.made, self.start, self.seen, self.nbytes = defer, [], 0, 0, 0
+    def __init__(self, max_isophotes: int | None = None):
+        self.defer, self.made, self.start, self.seen, self.nbytes = [], [], 0, 0, 0
+        self.max_isophotes = max_isophotes
 
     def add(self, draft):
         self.made.append(draft)
         self.nbytes, self.seen = self.nbytes + sum(d[0][0].nbytes for d in self.defer[self.seen:]), len(self.defer)
-        if self.nbytes > RESOLVE_PENDING_MAX_BYTES:
-            _resolve(self.made[self.start:], self.defer)
-            self.start, self.seen, self.nbytes = len(self.made), 0, 0
+        many = self.max_isophotes is not None and len(self.defer) >= self.max_isophotes
+        if many or self.nbytes > RESOLVE_PENDING_MAX_BYTES:
+            self.finish()
         return draft
+
+    def finish(self):
+        _resolve(self.made[self.start:], self.defer)
+        self.start, self.seen, self.nbytes = len(self.made), 0, 0
 
 
 def _resolve(drafts, defer: list) -> None:
@@ -454,8 +460,8 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
     rings_of = dict(zip(fk.tolist(), rings))
     # a frame smoothed once: every fitted candidate's ROI growth, levels and contour walks
     # (_grown_drafts); those it leaves go through _estimate_one
-    defer: list = []  # the drafts' contours in batches (_Batches), the last at the end (_resolve)
-    batches = _Batches(defer)
+    batches = _Batches()  # the drafts' contours in batches, the last at the end
+    defer = batches.defer
     drafts = _grown_drafts(frame, fk.tolist(), bps, rois_of, rings_of, rays, frames_of,
                            [det.candidates[k].saturated for k in fk.tolist()], others,
                            [int(row_in_others[k]) if keep[k] else -1 for k in fk.tolist()], batches)
@@ -478,5 +484,5 @@ def _candidate_drafts(frame: _Frame, det, r: Roi, bps_arr: np.ndarray, rays: np.
         out.append(batches.add(_estimate_one(frame, bp, roi_k, saturated=cand.saturated, grow=True, other_bps=others,
                                              own_bp=int(row_in_others[k]) if keep[k] else -1, bp_ray=rays[k],
                                              fitf=frames_of.get(k), ring=rings_of.get(k), defer=defer)))
-    _resolve(batches.made[batches.start:], defer)
+    batches.finish()
     return out

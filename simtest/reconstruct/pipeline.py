@@ -48,7 +48,7 @@ from simtest.reconstruct.broad_lobes import with_broad_lobes
 from simtest.reconstruct.detect import validate_image
 from simtest.reconstruct.frame_pass import frame_pass
 from simtest.reconstruct.frame_prep import _Frame, as_camera
-from simtest.reconstruct.isophotes import RESOLVE_BATCH_ISOPHOTES, _estimate_one, _find_bp, _resolve
+from simtest.reconstruct.isophotes import RESOLVE_BATCH_ISOPHOTES, _Batches, _estimate_one, _find_bp
 from simtest.reconstruct.result import Reconstruction
 from simtest.reconstruct.settings import ReconSettings
 from simtest.reconstruct.verify import shared_passes
@@ -190,14 +190,11 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
     """
     settings = ReconSettings.make(settings, isovalues, **options)
     cameras: dict = {}
-    drafts, defer, done = [], [], 0
+    batches = _Batches(RESOLVE_BATCH_ISOPHOTES)  # the contours of the items since the last batch
     for image, K, bp_uv, roi in items:
-        drafts.append(_roi_draft(image, K, bp_uv, roi, None, settings, cameras, defer))
-        if len(defer) >= RESOLVE_BATCH_ISOPHOTES:  # the contours of the items since the last batch
-            _resolve(drafts[done:], defer)
-            done = len(drafts)
-    _resolve(drafts[done:], defer)
-    return _complete(drafts)
+        batches.add(_roi_draft(image, K, bp_uv, roi, None, settings, cameras, batches.defer))
+    batches.finish()
+    return _complete(batches.made)
 
 
 #: The first name of :class:`~simtest.reconstruct.result.Reconstruction`.
