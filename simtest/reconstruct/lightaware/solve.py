@@ -453,24 +453,25 @@ def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndar
 def _correlation_area(r, sel, shape, step: int) -> float:
     """Fitted pixels per independent residual (>= 1): the residuals' 2-D autocorrelation summed within
     its radial mean's first zero crossing (A. D. Sokal's window, NATO ASI Series B 361, 1997). One real FFT
-    of the residuals and the pixels, zero-padded to a fast length past 2 n - 1: no lag wraps round."""
+    of the residuals and the pixels (Hs x Ws), zero-padded by at least ``min(Hs, Ws) // 2``, the window's
+    longest lag: none of the lags read wraps round onto one that holds pairs."""
     fft = require("scipy.fft")  # when first needed: scipy slows the start
     Hs, Ws = -(-shape[0] // step), -(-shape[1] // step)
     rows, cols = np.divmod(np.asarray(sel), shape[1])
     both = np.zeros((2, Hs, Ws))  # the pixels fitted (1) and their residuals about the mean
     both[:, rows // step, cols // step] = np.stack([np.ones(len(r)), r - float(np.mean(r))])
-    size = (fft.next_fast_len(2 * Hs - 1, real=True), fft.next_fast_len(2 * Ws - 1, real=True))
+    nrad = int(min(Hs, Ws) // 2)
+    size = (fft.next_fast_len(Hs + nrad, real=True), fft.next_fast_len(Ws + nrad, real=True))
     pairs, prods = fft.irfft2(np.abs(fft.rfft2(both, s=size)) ** 2, s=size)
     pairs = np.rint(pairs)  # counts of pixel pairs at each lag (the FFT's rounding taken off)
     var = float(prods[0, 0]) / max(float(pairs[0, 0]), 1.0)
     if not var > 0:
         return 1.0
     rad = np.rint(np.hypot(*np.meshgrid(*(np.fft.fftfreq(n, 1.0 / n) for n in size), indexing="ij"))).astype(int)
-    use = pairs > 0.5 * float(pairs[0, 0]) / 4.0  # lags with at least an eighth of the pairs
+    use = (pairs > 0.5 * float(pairs[0, 0]) / 4.0) & (rad <= nrad)  # an eighth of the pairs, in reach
     acf = np.where(use, prods / np.maximum(pairs, 1.0), 0.0) / var
-    nrad = int(min(Hs, Ws) // 2)
-    counts = np.bincount(rad[use], minlength=nrad + 1)[:nrad + 1]
-    radial = np.bincount(rad[use], acf[use], minlength=nrad + 1)[:nrad + 1] / np.maximum(counts, 1)
+    counts = np.bincount(rad[use], minlength=nrad + 1)
+    radial = np.bincount(rad[use], acf[use], minlength=nrad + 1) / np.maximum(counts, 1)
     zero = np.flatnonzero((radial[1:] <= 0) | (counts[1:] == 0))
     cut = int(zero[0]) + 1 if len(zero) else nrad + 1
     return max(float(acf[use & (rad < cut)].sum()), 1.0)
