@@ -54,6 +54,8 @@ NOT_DECISIONS = {
     "lightaware.plane_solve._SOLVES_KEPT": "a cache's size: a solve remembered is the solve redone, bit for bit",
     "lightaware.plane_solve.REFINE_MAX_PIXELS": "a cost bound: a larger ROI's refinement takes a sub-grid, "
                                                 "its fit judged by the decisions after",
+    "lightaware.plane_model.CAP_LIGHTS": "a cost bound: the pixel caps' share under a rig of more lights, "
+                                         "its fit judged by the decisions after",
     **{f"lightaware.plane_model.{n}": _SOLVER for n in ("_NOT_FINITE_RESIDUAL",
                                                        "_ROUGHNESS_START_STEPS",
                                                        "_START_ROUGHNESS_GRID",

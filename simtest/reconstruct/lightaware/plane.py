@@ -73,8 +73,9 @@ class FitSettings:
     supersample : int
         s x s point samples per pixel, averaged (1: the value at the pixel centre).
     max_pixels : int or None
-        Beyond this many unclipped pixels the starts are refined on a regular sub-grid, the best once
-        more on every pixel (``refine_all``) where the plane fits and nothing lies at ``floor_level``.
+        Beyond this many unclipped pixels (2 / L of it under L > 2 lights) the starts are refined on a regular
+        sub-grid, the best once more on every pixel (``refine_all``) where the plane fits and nothing lies at
+        ``floor_level``.
     refine_all : bool
         Refine the sub-grid's solution on every unclipped pixel (above).
     diffuse : bool

@@ -20,6 +20,10 @@ from simtest.reconstruct.lightaware.solve import _ROUGHNESS_RANGE
 #: The residual of every pixel where the model is not finite: far above any normalised residual, so LM rejects it.
 _NOT_FINITE_RESIDUAL = 1e6
 
+#: The lights the pixel caps (``FitSettings.max_pixels``, ``REFINE_MAX_PIXELS``) are set for, the colonoscope's two
+#: guides: a rig of L lights fits ``CAP_LIGHTS / L`` of them, each model evaluation costing pixels times lights.
+CAP_LIGHTS = 2
+
 #: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness.
 _ROUGHNESS_START_STEPS = 3
 
@@ -81,6 +85,8 @@ class PlaneModel:
     def use(self, mp, keep_=None):
         """Fit the pixels of ``keep_`` (default every kept one), on a sub-grid beyond ``mp``; caches dropped."""
         keep_ = self.keep if keep_ is None else keep_
+        if mp and len(self.rig_arr[1]) > CAP_LIGHTS:  # the caps bound pixels x lights
+            mp = max(mp * CAP_LIGHTS // len(self.rig_arr[1]), 1)
         lower, censor, clip_level = self.lower, self.censor, self.clip_level
         sel_, self.step, uv_, y_ = _roi_samples(self.vals, self.o, self.uu, self.vv, keep_, mp)
         self.sel, self.y = sel_, y_
