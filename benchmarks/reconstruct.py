@@ -98,8 +98,8 @@ def _bench_default_colonoscope_rig(repeat: int) -> list[BenchResult]:
     """What a user of the README gets: ``simtest render colonoscope`` (the default haustral scene,
     seed 0, 1350 x 1080 at its own spp), then ``simtest reconstruct frame.png --intrinsics
     camera.json`` on every core (:func:`simtest.reconstruct.cli.reconstruct_single`, its light-aware
-    fits in 2 worker processes). One run, only with ``repeat`` of 5 or more (a minute or more of
-    CPU: the fits of every ok glint); wall and CPU of the process and its workers."""
+    fits in 2 worker processes). One run, only with ``repeat`` of 5 or more (the fits of every ok glint
+    dominate); wall and CPU of the process and its workers."""
     name = ("per rendered default colonoscope frame (haustral, seed 0) with its camera file: "
             "`simtest reconstruct` on every core, light-aware fits of every ok glint, one run")
     if repeat < 5:
@@ -124,7 +124,7 @@ REAL_TILE = "hyperkvasir_tile_r2c3_polyp.png"
 
 
 #: Accepted highlights of the tile fitted in a quick look (``--repeat`` under 5): two, so that the
-#: worker row still shares them among the processes; the whole tile's fits take a minute or more.
+#: worker row still shares them among the processes; the whole tile's fits take several times longer.
 #: The two of least ROI area: a quick look shows that the rows run, at the cheap end of the tile's
 #: fits (--repeat 5 and over fits every candidate).
 QUICK_TILE_FITS = 2
