@@ -33,7 +33,7 @@ COUNT_SUFFIX = "_n"
 
 #: How far a detection's BP may lie from a true highlight's BP to be that highlight's, px; also
 #: the default ``match_px`` of a case. The two guides' highlights of the endoscope plane lie about
-#: 18 px apart (``reports/detection/2026-11-24-colonoscope_plane``).
+#: 18 px apart (``reports/detection/2026-12-02-colonoscope_plane``).
 MATCH_PX = 15.0
 
 #: Errors (deg) that count as a usable normal (issue 63's headline shares).
