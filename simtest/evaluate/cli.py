@@ -214,7 +214,9 @@ def _detection_markdown(results: dict) -> str:
          "true positive when it is the first to fall on a target (a rendered target that gathers k "
          "lights' highlights: one of the first k; see simtest.evaluate.detection). Renders are "
          "detected and checked under their light rig, without the light-aware fits (which can turn a rig "
-         "partner's row ok in simtest reconstruct).", ""]
+         "partner's row ok in simtest reconstruct). On a render, a candidate on no target falls on `specular` where "
+         "its light is mostly specular reflection (a glint that is not an isolated highlight), else on "
+         "`unlabelled`.", ""]
     head = ["| {} | targets | candidates | precision | recall | ok | ok precision | ok recall | ok F1 | "
             "not examined |", "|---|---|---|---|---|---|---|---|---|---|"]
 

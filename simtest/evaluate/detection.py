@@ -4,7 +4,10 @@ A frame's ground truth is a list of labelled bright structures, each of a kind (
 The targets are the ``isolated`` ones: a single compact elliptical specular highlight on tissue,
 what the isophote method can use. Labels come from hand-labelled real frames
 (``tests/data/real/structures_labelled.json``, protocol in ``tests/data/real/README.md``) or from
-renders (:func:`simtest.render.truth.highlight_targets`; other bright structures unlabelled).
+renders (:func:`simtest.render.truth.highlight_targets`). A render's truth also tells where its light is
+mostly specular reflection (:func:`simtest.render.truth.specular_pixels`): a candidate on no label there
+falls on ``specular`` (a glint of a glint field, a streak or a sheen: specular, not an isolated highlight),
+elsewhere on ``unlabelled``.
 
 Matching: a candidate's BP falls on the nearest structure within its reach (radius of a disc of
 its area plus ``tolerance_px``, from the centroid or, for a rendered target of several lights'
@@ -49,18 +52,23 @@ from simtest.reconstruct.settings import ReconSettings  # noqa: E402
 from simtest.reconstruct.verify import RESIDUAL_MAX_REL, assess, confidence_features  # noqa: E402
 from simtest.render.render import render_scene  # noqa: E402
 from simtest.render.sensor import field_stop_mask  # noqa: E402
-from simtest.render.truth import HighlightTarget, highlight_targets  # noqa: E402
+from simtest.render.truth import HighlightTarget, highlight_targets, specular_pixels  # noqa: E402
 from simtest.scene import with_overrides  # noqa: E402
 from simtest.scene.spec import load_scene  # noqa: E402
 
-__all__ = ["KINDS", "TARGET_KIND", "PASSING", "TOLERANCE_PX", "Structure", "FrameScore", "LabelledFrame",
-           "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames", "rendered_frames",
+__all__ = ["KINDS", "TARGET_KIND", "SPECULAR_KIND", "PASSING", "TOLERANCE_PX", "Structure", "FrameScore",
+           "LabelledFrame", "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames", "rendered_frames",
            "suite_frames", "evaluate_frames", "detection_figure", "labeller_agreement", "confidence_rows",
            "cross_validated_report", "reliability_figure"]
 
 #: The kinds of labelled bright structure; ``isolated`` is the target.
 KINDS = ("isolated", "cluster", "streak", "instrument", "overlay", "border", "texture")
 TARGET_KIND = "isolated"
+#: What a render's candidate on no label falls on where its light is mostly specular reflection.
+SPECULAR_KIND = "specular"
+#: How far from a candidate's BP a render's specular pixel may lie for the candidate to fall on it, px: the BP's
+#: pixel and its 8 neighbours (the BP is a sub-pixel peak of the smoothed frame; a geometric bound, not tuned).
+SPECULAR_REACH_PX = 1
 #: The statuses of a fit that passes every specularity check (``low_confidence``: below ``--min-confidence``).
 PASSING = ("ok", "low_confidence")
 
@@ -150,7 +158,7 @@ class FrameScore:
     targets_found, targets_found_ok : int
         Targets matched by a candidate, by an ``ok`` estimate.
     ok_on : Counter
-        The ``ok`` estimates by what they fall on: a kind, ``"duplicate"`` or ``"unlabelled"``.
+        The ``ok`` estimates by what they fall on: a kind, ``"duplicate"``, ``"specular"`` or ``"unlabelled"``.
     """
 
     name: str
@@ -183,7 +191,8 @@ class FrameScore:
                 "ok_on": dict(sorted(self.ok_on.items()))}
 
 
-def score_frame(name: str, specularities: list[dict], structures: list[Structure]) -> tuple[FrameScore, list[dict]]:
+def score_frame(name: str, specularities: list[dict], structures: list[Structure],
+                specular_px: np.ndarray | None = None) -> tuple[FrameScore, list[dict]]:
     """Score one frame's estimates against its labels.
 
     Parameters
@@ -194,11 +203,14 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
         Its estimates as in ``estimates.json`` (``bp_px``, ``status``), brightest first.
     structures : list of Structure
         Its labels.
+    specular_px : ndarray of shape (H, W), bool, optional
+        A render's pixels whose light is mostly specular reflection: a candidate on no label within
+        :data:`SPECULAR_REACH_PX` of one falls on :data:`SPECULAR_KIND`. The scores do not read it.
 
     Returns
     -------
     (FrameScore, list of dict)
-        The scores, and per candidate ``{"bp_px", "status", "on": kind | "duplicate" |
+        The scores, and per candidate ``{"bp_px", "status", "on": kind | "duplicate" | "specular" |
         "unlabelled", "tp": bool, "tp_ok": bool, "tp_pass": bool, "confidence", "target"}``
         (``tp_pass``: a target's first match among the fits that pass the checks, ``ok`` or
         ``low_confidence``: the set ``--min-confidence`` chooses from). A rendered target of k lights' highlights takes k matches as
@@ -214,7 +226,7 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
     for s, j in zip(specularities, hit):
         ok = s["status"] == "ok"
         passes = s["status"] in PASSING
-        on = "unlabelled" if j is None else structures[j].kind
+        on = structures[j].kind if j is not None else _on_specular(specular_px, s["bp_px"])
         tp = tp_ok = tp_pass = False
         if on == TARGET_KIND:
             # a target of k lights' highlights holds k true ones (one estimate a guide's lobe)
@@ -239,6 +251,16 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
                      "tp": tp, "tp_ok": tp_ok, "tp_pass": tp_pass, "confidence": s.get("confidence"), "target": j})
     sc.targets_found, sc.targets_found_ok = len(found), len(found_ok)
     return sc, rows
+
+
+def _on_specular(specular_px: np.ndarray | None, uv) -> str:
+    """:data:`SPECULAR_KIND` where a pixel within :data:`SPECULAR_REACH_PX` of ``uv`` [u, v] is in ``specular_px``,
+    else ``"unlabelled"``."""
+    if specular_px is None or not np.all(np.isfinite(uv)):
+        return "unlabelled"
+    c, r, k = int(round(float(uv[0]))), int(round(float(uv[1]))), SPECULAR_REACH_PX
+    near = specular_px[max(r - k, 0):max(r + k + 1, 0), max(c - k, 0):max(c + k + 1, 0)]
+    return SPECULAR_KIND if near.any() else "unlabelled"
 
 
 _COUNTS = ("targets", "candidates", "candidates_tp", "ok", "ok_tp", "targets_found", "targets_found_ok")
@@ -269,6 +291,9 @@ class LabelledFrame:
     structures : list of Structure
     lights : LightRig or None
         A render's light rig; None: unknown.
+    specular_px : ndarray of shape (H, W), bool, or None
+        A render's pixels whose light is mostly specular reflection
+        (:func:`~simtest.render.truth.specular_pixels`); None: unknown (real frames).
     """
 
     name: str
@@ -276,6 +301,7 @@ class LabelledFrame:
     camera: object
     structures: list
     lights: object = None
+    specular_px: np.ndarray | None = None
 
 
 def _tile_box(tile: str, tile_px: int) -> tuple[int, int, int, int]:
@@ -415,8 +441,9 @@ def rendered_frames(scene: str, *, seed: int | None = None) -> list[LabelledFram
     -------
     list of LabelledFrame
         One frame; its structures are the targets (kind ``isolated``) at each target's peak,
-        with its half-maximum area. Other bright structures of a render are not labelled, so they
-        count as ``unlabelled`` false positives.
+        with its half-maximum area, and ``specular_px`` where its light is mostly specular. Other bright
+        structures of a render are not labelled: a candidate there is a false positive, on ``specular``
+        or ``unlabelled``.
     """
     spec = load_scene(scene)
     return [_rendered_frame(spec, seed, spec.name)]
@@ -429,7 +456,8 @@ def _rendered_frame(spec, seed: int | None, name: str) -> LabelledFrame:
     valid = res.mask & field_stop_mask(res.mask.shape, sensor.field_stop, sensor.field_stop_radius)
     targets = highlight_targets(res.highlights, res.specular, valid)
     structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND, t) for t in targets]
-    return LabelledFrame(name, res.frame, res.camera, structs, res.light_rig)
+    specular = specular_pixels(res.specular, res.linear, valid)
+    return LabelledFrame(name, res.frame, res.camera, structs, res.light_rig, specular)
 
 
 def suite_frames(suite: str, *, realisations: int | None = None, progress=None) -> list[LabelledFrame]:
@@ -529,7 +557,7 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
         ests = reconstruct(fr.image, fr.camera, settings=settings, lights=fr.lights)
         if keep is not None:
             keep.append(ests)
-        sc, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
+        sc, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures, fr.specular_px)
         scores.append(sc)
         missed = [[s.u, s.v] for j, s in enumerate(fr.structures) if s.kind == TARGET_KIND
                   and not any(r["tp_ok"] and s.distance_px(r["bp_px"]) <= s.reach_px for r in rows)]
@@ -577,9 +605,9 @@ FIGURE_FRAMES_MAX = 24
 def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int = 6):
     """The frames with what detection got right and wrong, as a matplotlib figure.
 
-    ``ok`` estimates on targets: green circles; on anything else: red crosses; targets no ``ok``
-    estimate found: yellow squares. Of more than :data:`FIGURE_FRAMES_MAX` frames only those with an
-    error are drawn.
+    ``ok`` estimates on targets: green circles; on a render's other specular structures (``specular``):
+    orange pluses; on anything else: red crosses; targets no ``ok`` estimate found: yellow squares. Of
+    more than :data:`FIGURE_FRAMES_MAX` frames only those with an error are drawn.
     """
     pairs = list(zip(frames, results["frames"]))
     left_out = 0
@@ -598,21 +626,26 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
     for ax, (fr, res) in zip(axes.ravel(), pairs):
         ax.imshow(fr.image, cmap="gray" if fr.image.ndim == 2 else None)
         tp = np.array([r["bp_px"] for r in res["candidates_detail"] if r["tp_ok"]]).reshape(-1, 2)
-        fp = np.array([r["bp_px"] for r in res["candidates_detail"]
-                       if r["status"] == "ok" and not r["tp_ok"]]).reshape(-1, 2)
+        wrong = [r for r in res["candidates_detail"] if r["status"] == "ok" and not r["tp_ok"]]
+        glint = np.array([r["bp_px"] for r in wrong if r["on"] == SPECULAR_KIND]).reshape(-1, 2)
+        fp = np.array([r["bp_px"] for r in wrong if r["on"] != SPECULAR_KIND]).reshape(-1, 2)
         miss = np.array(res["missed_targets_ok"]).reshape(-1, 2)
         ax.scatter(tp[:, 0], tp[:, 1], s=40, facecolors="none", edgecolors="#2ca02c", lw=1.2)
+        ax.scatter(glint[:, 0], glint[:, 1], s=34, marker="+", c="#ff7f0e", lw=1.2)
         ax.scatter(fp[:, 0], fp[:, 1], s=30, marker="x", c="#d62728", lw=1.2)
         ax.scatter(miss[:, 0], miss[:, 1], s=40, marker="s", facecolors="none", edgecolors="#ffcc00", lw=1.2)
-        ax.set_title(f"{fr.name}: {res['ok_tp']} hit, {res['ok'] - res['ok_tp']} false, "
+        on_glints = "" if fr.specular_px is None else f"{len(glint)} on other glints, "
+        ax.set_title(f"{fr.name}: {res['ok_tp']} hit, {on_glints}{len(fp)} false, "
                      f"{len(miss)} missed (of {res['targets']})", fontsize=7)
     p = results["pooled"]
 
     def pct(v):
         return "n/a" if v is None else f"{v:.2f}"
     fig.suptitle(f"ok estimates against labelled isolated highlights: precision {pct(p['precision_ok'])}, "
-                 f"recall {pct(p['recall_ok'])} over {p['targets']} targets\n(green circle: hit, red "
-                 "cross: false positive, yellow square: missed)"
+                 f"recall {pct(p['recall_ok'])} over {p['targets']} targets\n(green circle: hit, "
+                 + ("orange plus: on a glint that is no isolated highlight,\n"
+                    if any(fr.specular_px is not None for fr in frames) else "")
+                 + "red cross: false positive, yellow square: missed)"
                  + (f"; {left_out} frames without an error not drawn" if left_out else ""), fontsize=9)
     return fig
 

@@ -289,6 +289,29 @@ TARGET_ELLIPTICITY_MIN = 0.75
 #: :data:`TARGET_SIGMA_PX`, as smoothing moves an asymmetric lobe's peak by up to about sigma and the BP is the
 #: sensor image's brightest pixel, not the specular image's (a geometric bound, not tuned on any data)
 LOBE_MATCH_PX = 2.0 * TARGET_SIGMA_PX
+#: :func:`specular_pixels`: the least share of a pixel's linear radiance that specular reflection holds for the
+#: pixel to show a specular structure: half, where the specular term outweighs the diffuse one (a convention of
+#: the truth's labels, as :data:`TARGET_REL` is; not tuned on any data)
+SPECULAR_SHARE = 0.5
+
+
+def specular_pixels(specular: np.ndarray, linear: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Where a render's light is mostly specular reflection: its glints, streaks and sheens, isolated or not.
+
+    Parameters
+    ----------
+    specular, linear : ndarray of shape (H, W)
+        The render's specular-only and total (specular + diffuse) linear radiance, in one unit.
+    valid : ndarray of shape (H, W), bool
+        Pixels that show the surface within the scope's field stop.
+
+    Returns
+    -------
+    ndarray of shape (H, W), bool
+        The pixels of ``valid`` whose specular radiance is positive and at least :data:`SPECULAR_SHARE` of the linear.
+    """
+    sp = np.asarray(specular, dtype=np.float64)
+    return np.asarray(valid, dtype=bool) & (sp > 0) & (sp >= SPECULAR_SHARE * np.asarray(linear, dtype=np.float64))
 
 
 @dataclass(frozen=True)
