@@ -242,7 +242,8 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
 
 
 def summary_line(estimates, paths, detection: dict | None = None) -> str:
-    """One summary of a reconstruction: counts per status, what detection left out, the outputs.
+    """One summary of a reconstruction: counts per status, where the ok estimates' recommended normals come
+    from (the estimator: under a rig the BP ray's fallback is degrees off), what detection left out, the outputs.
 
     Parameters
     ----------
@@ -256,19 +257,26 @@ def summary_line(estimates, paths, detection: dict | None = None) -> str:
     """
     counts = Counter(e.status for e in estimates)
     n_ok = counts.pop("ok", 0)
-    return (f"{len(estimates)} candidate(s), {n_ok} reconstructed{_tail(counts, detection)} -> "
+    whence = Counter(e.recommended.normal_from for e in estimates if e.ok)
+    whence_text = f" (normal from {_counted(whence)})" if whence else ""
+    return (f"{len(estimates)} candidate(s), {n_ok} reconstructed{whence_text}{_tail(counts, detection)} -> "
             + ", ".join(str(p) for p in paths))
 
 
 def _tail(counts: dict[str, int], left: dict | None) -> str:
     """A summary line's tail after "N reconstructed": the other statuses' counts, most first, and the
     bright components detection left out (``left``'s ``not_examined``, whenever any)."""
-    rest = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    rest = _counted(counts)
     tail = f"; {rest}" if rest else ""
     if left and left.get("not_examined"):
         tail += (f"; {left['not_examined']} of {left['components']} bright components not examined "
                  f"(--max-candidates {left['max_candidates']}; 0 examines all)")
     return tail
+
+
+def _counted(counts: dict[str, int]) -> str:
+    """``"name count, ..."``, most first (ties by name)."""
+    return ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
 def _camera_of(doc: dict, intrinsics: Path | None):
