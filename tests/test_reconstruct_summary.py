@@ -1,8 +1,9 @@
-"""`simtest reconstruct`'s summary line says where the ok estimates' normals come from.
+"""`simtest reconstruct`'s summary line and overlay legend say where the ok estimates' normals come from.
 
-Under a light rig most ok highlights of a glint field fall back on the BP ray, degrees off; a line
-that only counted "N reconstructed" hid that. The counts in the line are those of the
-``normal_from`` of the ok rows in ``estimates.json``, most first.
+Under a light rig most ok highlights of a glint field fall back on the BP ray, degrees off, whose needle
+points at the camera and is too short to see; a line that only counted "N reconstructed" and a legend
+that only named the needles hid that. The counts are those of the ``normal_from`` of the ok rows in
+``estimates.json``, most first.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from simtest.cli import app
+from simtest.reconstruct import overlay
 
 DATA = Path(__file__).resolve().parent / "data" / "real"
 
@@ -33,3 +35,19 @@ def test_the_summary_counts_the_ok_estimates_by_the_estimator_of_their_normal(tm
     got = [(k, int(v)) for k, v in (part.rsplit(" ", 1) for part in m.group(2).split(", "))]
     assert dict(got) == dict(want) and int(m.group(1)) == sum(want.values())
     assert [v for _, v in got] == sorted((v for _, v in got), reverse=True)  # most first
+
+
+def test_the_overlay_legend_counts_the_recommended_normals_of_each_estimator(tmp_path, monkeypatch):
+    legends = []
+    monkeypatch.setattr(overlay, "_legend", lambda canvas, title, entries: legends.append(entries))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["reconstruct", str(DATA / "hyperkvasir_tile_r2c3_polyp.png"), "-k",
+                                   str(DATA / "intrinsics_assumed_f140.json"), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    rows = json.loads((out / "estimates.json").read_text())["specularities"]
+    want = Counter(r["normal_from"] for r in rows if r["status"] == "ok")
+    (entries,) = legends
+    labels = {label.split(" ")[0]: label for label, _, kind in entries if kind in ("line", "dash")}  # the needles
+    for name, n in want.items():  # every source is drawn (the tile's: isophote estimators) and counted
+        assert labels[name] == f"{name} (recommended for {n})", labels
+    assert all(label == name for name, label in labels.items() if name not in want and name != "normal")

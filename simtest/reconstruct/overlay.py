@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import zlib
+from collections import Counter
 from pathlib import Path
 
 import cv2
@@ -237,7 +238,7 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
             cv2.drawMarker(canvas, (u, v), (0, 0, 255), cv2.MARKER_TILTED_CROSS, max(6, round(6 * scale)), 1)
             if len(rejected) <= 30:
                 cv2.putText(canvas, e.status, (u + 4, v - 4), _FONT, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
-    entries = [(n, estimator_colour(n), "dash" if n == "bp_ray" else "line") for n in present]
+    entries = [(_entry_label(n, ok, names), estimator_colour(n), "dash" if n == "bp_ray" else "line") for n in present]
     entries.append(("isophote (primary)", "#ffff00", "thin"))
     entries.append(("BP", "#ffffff", "dot"))
     if show_rejected and rejected:
@@ -275,6 +276,17 @@ def _needle(canvas, a, b, colour, thick: int, *, dashed: bool = False) -> None:
     for k in range(0, n, 2):  # every other piece: dash, gap, dash, ...
         p, q = a + (b - a) * (k / n), a + (b - a) * (min(k + 1, n) / n)
         cv2.line(canvas, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), colour, thick, cv2.LINE_AA, _SHIFT)
+
+
+def _entry_label(name: str, ok: list, names: list) -> str:
+    """A drawn estimator's legend label with how many ok highlights' recommended normal it gives (``normal``: the
+    recommended normals of the estimators not drawn, by estimator); under a rig the BP ray's, pointing at the
+    camera, is a needle too short to see."""
+    whence = Counter(e.recommended.normal_from for e in ok)
+    if name == "normal":
+        other = sorted(((k, v) for k, v in whence.items() if k not in names), key=lambda kv: (-kv[1], kv[0]))
+        return f"normal (recommended: {', '.join(f'{k} {v}' for k, v in other)})" if other else name
+    return f"{name} (recommended for {whence[name]})" if whence[name] else name
 
 
 def _legend(canvas, title: str, entries) -> None:
