@@ -51,3 +51,28 @@ def test_the_overlay_legend_counts_the_recommended_normals_of_each_estimator(tmp
     for name, n in want.items():  # every source is drawn (the tile's: isophote estimators) and counted
         assert labels[name] == f"{name} (recommended for {n})", labels
     assert all(label == name for name, label in labels.items() if name not in want and name != "normal")
+
+
+def test_a_folders_summary_and_records_count_the_ok_normals_by_estimator(tmp_path):
+    from simtest.reconstruct.table import read_frames
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for name in ("hyperkvasir_tile_r2c3_polyp.png", "hyperkvasir_tile_r1c7_mucosa.png"):
+        (frames / name).write_bytes((DATA / name).read_bytes())
+    lines = {}
+    for fmt in ("parquet", "jsonl"):
+        out = tmp_path / fmt
+        res = CliRunner().invoke(app, ["reconstruct", str(frames), "-k", str(DATA / "intrinsics_assumed_f140.json"),
+                                       "-o", str(out), "-j", "1", "--format", fmt])
+        assert res.exit_code == 0, res.output
+        records = read_frames(next(out.glob("estimates.*")))
+        for rec in records:  # each frame's count is its ok rows'
+            assert rec["normals_from"] == dict(Counter(s["normal_from"] for s in rec["specularities"]
+                                                       if s["status"] == "ok"))
+        want = sum((Counter(rec["normals_from"]) for rec in records), Counter())
+        assert sum(want.values()) > 0
+        lines[fmt] = res.output.strip().splitlines()[-1]
+        m = re.search(r"reconstructed \(normal from ([^)]*)\)", lines[fmt])
+        assert m is not None and dict((k, int(v)) for k, v in (p.rsplit(" ", 1) for p in m.group(1).split(", "))) \
+            == dict(want), lines[fmt]

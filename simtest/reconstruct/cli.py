@@ -204,6 +204,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
                           output_format="parquet") -> None:
     """Folder or video: estimates.parquet (or .jsonl) in frame order, with a progress bar."""
     counts: Counter = Counter()
+    whence: Counter = Counter()
     left = {"components": 0, "not_examined": 0}
     try:
         source = open_frames(path)
@@ -225,6 +226,7 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
 
             def on_frame(rec):
                 counts.update(rec["counts"])
+                whence.update(rec["normals_from"])
                 left["components"] += rec["detection"]["components"]
                 left["not_examined"] += rec["detection"]["not_examined"]
                 n = rec["frame"] + 1
@@ -237,8 +239,9 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     n_cand = sum(counts.values())
     n_ok = counts.pop("ok", 0)
     rest = _tail(counts, dict(left, max_candidates=settings.max_candidates))
+    whence_text = f" (normal from {_counted(whence)})" if whence else ""
     typer.echo(f"{n} frame(s) in {wall:.2f} s ({n / max(wall, 1e-9):.1f} frames/s, {n_workers} "
-               f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed{rest} -> {written}")
+               f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed{whence_text}{rest} -> {written}")
 
 
 def summary_line(estimates, paths, detection: dict | None = None) -> str:

@@ -8,8 +8,9 @@ candidate) or ``estimates.jsonl`` (a line per frame). With the camera file's lig
 frame gets the light-aware fits, as a single image does.
 
 A record: ``{"frame": index from 0, "source": file name or "video:<index>", "image_shape":
-[H, W], "counts": {status: n}, "detection": {components, examined, not_examined,
-max_candidates}, "specularities": [estimate dicts, as in estimates.json]}``.
+[H, W], "counts": {status: n}, "normals_from": {estimator: n} (the ok rows' ``normal_from``),
+"detection": {components, examined, not_examined, max_candidates}, "specularities": [estimate
+dicts, as in estimates.json]}``.
 """
 
 from __future__ import annotations
@@ -264,8 +265,9 @@ def _frame_head(args) -> tuple[dict, list, bool]:
     # a single image's light-aware step (none without a rig off the camera), on the response's linear light
     ests = light_aware_with_rig(image, ests, K, rig, cubic=cubic, response=response)
     counts = dict(Counter(e.status for e in ests))  # in the order statuses first appear
+    whence = dict(Counter(e.recommended.normal_from for e in ests if e.ok))
     return ({"frame": index, "source": name, "image_shape": [int(v) for v in image.shape[:2]],
-             "counts": counts, "detection": detection}, ests, include_points)
+             "counts": counts, "normals_from": whence, "detection": detection}, ests, include_points)
 
 
 def _frame_record(args) -> dict:

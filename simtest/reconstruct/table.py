@@ -358,7 +358,7 @@ def read_frames(path) -> list[dict]:
     -------
     list of dict
         One record per frame, in order: ``frame``, ``source``, ``image_shape``, ``counts``,
-        ``detection`` and ``specularities`` (dicts of :func:`estimate_to_dict`, as
+        ``normals_from``, ``detection`` and ``specularities`` (dicts of :func:`estimate_to_dict`, as
         ``estimates.json`` holds them), the same from either file.
 
     Raises
