@@ -57,8 +57,8 @@ from simtest.scene import with_overrides  # noqa: E402
 from simtest.scene.spec import load_scene  # noqa: E402
 
 __all__ = ["KINDS", "TARGET_KIND", "SPECULAR_KIND", "PASSING", "TOLERANCE_PX", "Structure", "FrameScore",
-           "LabelledFrame", "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames", "rendered_frames",
-           "suite_frames", "evaluate_frames", "detection_figure", "labeller_agreement", "confidence_rows",
+           "LabelledFrame", "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames",
+           "rendered_frames", "suite_frames", "evaluate_frames", "detection_figure", "labeller_agreement", "confidence_rows",
            "cross_validated_report", "reliability_figure"]
 
 #: The kinds of labelled bright structure; ``isolated`` is the target.

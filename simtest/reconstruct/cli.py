@@ -40,6 +40,7 @@ from simtest.reconstruct.images import InputError, c3vd_depth_mm, load_image, re
 from simtest.reconstruct.io import RECONSTRUCT_FILES, dumps, estimates_document, read_estimates
 from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.recommend import counts_text, normals_from
 from simtest.reconstruct.rig_centroid import light_aware_with_rig
 from simtest.reconstruct.registry import names
 from simtest.reconstruct.settings import MAX_CANDIDATES, ReconSettings
@@ -239,9 +240,8 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     n_cand = sum(counts.values())
     n_ok = counts.pop("ok", 0)
     rest = _tail(counts, dict(left, max_candidates=settings.max_candidates))
-    whence_text = f" (normal from {_counted(whence)})" if whence else ""
     typer.echo(f"{n} frame(s) in {wall:.2f} s ({n / max(wall, 1e-9):.1f} frames/s, {n_workers} "
-               f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed{whence_text}{rest} -> {written}")
+               f"worker(s)): {n_cand} candidate(s), {n_ok} reconstructed{_whence(whence)}{rest} -> {written}")
 
 
 def summary_line(estimates, paths, detection: dict | None = None) -> str:
@@ -260,16 +260,15 @@ def summary_line(estimates, paths, detection: dict | None = None) -> str:
     """
     counts = Counter(e.status for e in estimates)
     n_ok = counts.pop("ok", 0)
-    whence = Counter(e.recommended.normal_from for e in estimates if e.ok)
-    whence_text = f" (normal from {_counted(whence)})" if whence else ""
-    return (f"{len(estimates)} candidate(s), {n_ok} reconstructed{whence_text}{_tail(counts, detection)} -> "
+    return (f"{len(estimates)} candidate(s), {n_ok} reconstructed{_whence(normals_from(estimates))}"
+            f"{_tail(counts, detection)} -> "
             + ", ".join(str(p) for p in paths))
 
 
 def _tail(counts: dict[str, int], left: dict | None) -> str:
     """A summary line's tail after "N reconstructed": the other statuses' counts, most first, and the
     bright components detection left out (``left``'s ``not_examined``, whenever any)."""
-    rest = _counted(counts)
+    rest = counts_text(counts)
     tail = f"; {rest}" if rest else ""
     if left and left.get("not_examined"):
         tail += (f"; {left['not_examined']} of {left['components']} bright components not examined "
@@ -277,9 +276,10 @@ def _tail(counts: dict[str, int], left: dict | None) -> str:
     return tail
 
 
-def _counted(counts: dict[str, int]) -> str:
-    """``"name count, ..."``, most first (ties by name)."""
-    return ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+def _whence(normals: dict[str, int]) -> str:
+    """A summary line's `` (normal from name count, ...)`` after "N reconstructed" (:func:`normals_from`'s
+    counts); "" for none."""
+    return f" (normal from {counts_text(normals)})" if normals else ""
 
 
 def _camera_of(doc: dict, intrinsics: Path | None):

@@ -39,6 +39,7 @@ from simtest.reconstruct.images import InputError, load_image, quiet_stderr
 from simtest.reconstruct.io import dumps, estimate_to_dict
 from simtest.reconstruct.table import ROW_GROUP_ROWS, arrow, estimates_batch, frame_batch, table_metadata, table_schema
 from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.recommend import normals_from
 from simtest.reconstruct.rig_centroid import light_aware_with_rig
 from simtest.reconstruct.settings import ReconSettings
 
@@ -265,9 +266,8 @@ def _frame_head(args) -> tuple[dict, list, bool]:
     # a single image's light-aware step (none without a rig off the camera), on the response's linear light
     ests = light_aware_with_rig(image, ests, K, rig, cubic=cubic, response=response)
     counts = dict(Counter(e.status for e in ests))  # in the order statuses first appear
-    whence = dict(Counter(e.recommended.normal_from for e in ests if e.ok))
     return ({"frame": index, "source": name, "image_shape": [int(v) for v in image.shape[:2]],
-             "counts": counts, "normals_from": whence, "detection": detection}, ests, include_points)
+             "counts": counts, "normals_from": normals_from(ests), "detection": detection}, ests, include_points)
 
 
 def _frame_record(args) -> dict:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import zlib
-from collections import Counter
 from pathlib import Path
 
 import cv2
@@ -22,6 +21,7 @@ import numpy as np
 from simtest._lazy import require
 from simtest._io import atomic_write
 from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.recommend import counts_text, normals_from
 
 __all__ = ["ESTIMATOR_COLOURS", "MAX_OVERLAY_PIXELS", "OVERLAY_BYTES_PER_PIXEL", "check_overlay_size", "draw_overlay",
            "estimator_colour", "needle_length_px"]
@@ -238,7 +238,9 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
             cv2.drawMarker(canvas, (u, v), (0, 0, 255), cv2.MARKER_TILTED_CROSS, max(6, round(6 * scale)), 1)
             if len(rejected) <= 30:
                 cv2.putText(canvas, e.status, (u + 4, v - 4), _FONT, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
-    entries = [(_entry_label(n, ok, names), estimator_colour(n), "dash" if n == "bp_ray" else "line") for n in present]
+    whence = normals_from(ok)
+    entries = [(_entry_label(n, whence, names), estimator_colour(n), "dash" if n == "bp_ray" else "line")
+               for n in present]
     entries.append(("isophote (primary)", "#ffff00", "thin"))
     entries.append(("BP", "#ffffff", "dot"))
     if show_rejected and rejected:
@@ -278,15 +280,14 @@ def _needle(canvas, a, b, colour, thick: int, *, dashed: bool = False) -> None:
         cv2.line(canvas, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), colour, thick, cv2.LINE_AA, _SHIFT)
 
 
-def _entry_label(name: str, ok: list, names: list) -> str:
-    """A drawn estimator's legend label with how many ok highlights' recommended normal it gives (``normal``: the
-    recommended normals of the estimators not drawn, by estimator); under a rig the BP ray's, pointing at the
-    camera, is a needle too short to see."""
-    whence = Counter(e.recommended.normal_from for e in ok)
+def _entry_label(name: str, whence: dict[str, int], names: list) -> str:
+    """A drawn estimator's legend label with how many ok highlights' recommended normal it gives (``whence``:
+    :func:`~simtest.reconstruct.recommend.normals_from`; ``normal``: the recommended normals of the estimators not
+    drawn, by estimator); under a rig the BP ray's, pointing at the camera, is a needle too short to see."""
     if name == "normal":
-        other = sorted(((k, v) for k, v in whence.items() if k not in names), key=lambda kv: (-kv[1], kv[0]))
-        return f"normal (recommended: {', '.join(f'{k} {v}' for k, v in other)})" if other else name
-    return f"{name} (recommended for {whence[name]})" if whence[name] else name
+        other = {k: v for k, v in whence.items() if k not in names}
+        return f"normal (recommended: {counts_text(other)})" if other else name
+    return f"{name} (recommended for {whence[name]})" if whence.get(name) else name
 
 
 def _legend(canvas, title: str, entries) -> None:

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,7 +58,7 @@ from simtest.reconstruct.registry import names
 
 __all__ = ["DEPTH_REL_SIGMA_CEILING", "ISOCURVE_ISOVALUES", "LIGHT_AWARE", "SIGMA_MARGIN", "Recommendation",
            "bp_error_depth_mm", "bp_ray_error_deg", "depth_within_ceiling", "guide_spread_deg", "recommend",
-           "with_guide_spread", "without_guide_spread"]
+           "with_guide_spread", "without_guide_spread", "normals_from", "counts_text"]
 
 #: The light-aware estimators, in the order of preference of the recommendation rule.
 LIGHT_AWARE = names("light_aware", ranked=True)
@@ -312,3 +313,15 @@ def recommend(est) -> Recommendation:
         if n is not None:
             return Recommendation(np.asarray(n), name)
     return Recommendation(np.asarray(est.bp_ray), "bp_ray")
+
+
+def normals_from(estimates) -> dict[str, int]:
+    """How many of the ``ok`` estimates' recommended normals each estimator gives (:func:`recommend`'s
+    ``normal_from``), in the order the estimators first appear: what ``simtest reconstruct`` reports."""
+    return dict(Counter(e.recommended.normal_from for e in estimates if e.ok))
+
+
+def counts_text(counts: dict[str, int]) -> str:
+    """``"name count, ..."`` of ``counts``, most first (ties by name): how the command line's summary and
+    the overlay's legend write counts."""
+    return ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
