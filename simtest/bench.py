@@ -102,7 +102,7 @@ def _flatten(section_name: str, obj, prefix: str = "") -> list[BenchResult]:
     return rows
 
 
-def _shown(value: float) -> str:
+def figure_text(value: float) -> str:
     """A figure as the table prints it: blank for a note's NaN, 3 significant digits below 1e-3."""
     if np.isnan(value):
         return ""
@@ -124,6 +124,9 @@ def bench_command(
     repeat: int = typer.Option(50, "--repeat", min=1, help="Timed runs per figure (median reported)."),
     variant: str = typer.Option(None, "--variant", help="Mitsuba variant for the render section: "
                                 "llvm_ad_rgb (its default), cuda_ad_rgb or auto."),
+    against: str = typer.Option(None, "--against", metavar="REV", help="Also run the sections on this git "
+                                "commit's tree, alternately with this clone's, and print the two side by side."),
+    rounds: int = typer.Option(2, "--rounds", min=1, help="With --against: runs of each tree, alternated."),
 ) -> None:
     """Run the speed benchmarks of a clone (benchmarks/) and print a table (median and min per
     figure, single core).
@@ -139,6 +142,11 @@ def bench_command(
     unknown = [n for n in chosen if n not in names]
     if unknown:
         fail(f"unknown bench section(s) {unknown}; known: {names}")
+    if against is not None:  # the clone's benchmarks/side_by_side.py runs both trees and prints them
+        try:
+            return importlib.import_module("benchmarks.side_by_side").main(against, chosen, repeat, rounds, variant)
+        except (LookupError, RuntimeError) as exc:
+            fail(exc)
     table = Table(title="simtest bench (single core)")
     for col in ("section", "figure", "median", "min", "unit", "target", "ok", "note"):
         table.add_column(col)
@@ -149,6 +157,7 @@ def bench_command(
             continue
         for r in run_section(name, fn, repeat, variant):
             ok = {None: "", True: "yes", False: "NO"}[r.meets_target]
-            table.add_row(r.section, r.name, _shown(r.value), "" if r.best is None else f"{r.best:.3f}",
+            table.add_row(r.section, r.name, figure_text(r.value), "" if r.best is None else f"{r.best:.3f}",
                           r.unit, "" if r.target is None else f"<= {r.target:g}", ok, r.note)
     Console(width=max(160, Console().width)).print(table)
+
