@@ -144,8 +144,10 @@ def paired(ours_runs: Sequence[list[dict]], theirs_runs: Sequence[list[dict]]) -
     """The rows of the two trees side by side, in this tree's order (then those only the other has).
 
     Each figure is the median over the runs; a row is ``{"section", "name", "unit", "ours", "theirs",
-    "ratio", "slower"}`` (:func:`ratio`; ``slower``: the ratio exceeds :data:`SLOWER_BAR`), None
-    where a tree lacks the row or has no figure for it (a note)."""
+    "ratio", "slower", "spread"}`` (:func:`ratio`; ``slower``: the ratio exceeds :data:`SLOWER_BAR`;
+    ``spread``: the larger of the two trees' largest over smallest run figure, the run-to-run noise a
+    ratio must stand out of), None where a tree lacks the row or has no figure for it (a note), or
+    (``spread``) where neither tree has two positive run figures."""
     def medians(runs):
         vals: dict[tuple[str, str], list] = {}
         units: dict[tuple[str, str], str] = {}
@@ -155,17 +157,19 @@ def paired(ours_runs: Sequence[list[dict]], theirs_runs: Sequence[list[dict]]) -
                 units.setdefault(key, r["unit"])
                 if r["value"] is not None:
                     vals.setdefault(key, []).append(float(r["value"]))
-        return {k: (statistics.median(vals[k]) if vals.get(k) else None) for k in units}, units
+        spreads = {k: max(v) / min(v) for k, v in vals.items() if len(v) > 1 and min(v) > 0}
+        return {k: (statistics.median(vals[k]) if vals.get(k) else None) for k in units}, units, spreads
 
-    ours, units = medians(ours_runs)
-    theirs, their_units = medians(theirs_runs)
+    ours, units, our_spreads = medians(ours_runs)
+    theirs, their_units, their_spreads = medians(theirs_runs)
     out = []
     for key in [*ours, *(k for k in theirs if k not in ours)]:
         a, b = ours.get(key), theirs.get(key)
         unit = units.get(key, their_units.get(key, ""))
         r = ratio(a, b, unit) if a is not None and b is not None and a > 0 and b > 0 else None
+        spread = [x for x in (our_spreads.get(key), their_spreads.get(key)) if x is not None]
         out.append({"section": key[0], "name": key[1], "unit": unit, "ours": a, "theirs": b, "ratio": r,
-                    "slower": r is not None and r > SLOWER_BAR})
+                    "slower": r is not None and r > SLOWER_BAR, "spread": max(spread) if spread else None})
     return out
 
 
@@ -203,11 +207,11 @@ def main(rev: str, sections: Sequence[str], repeat: int, rounds: int = ROUNDS, v
         commit, rows = side_by_side(rev, sections, repeat, rounds, variant,
                                     on_run=lambda label: status.update(f"benchmarks, {label}"))
     table = Table(title=f"simtest bench (single core): this tree against {commit[:9]}, {rounds} run(s) each, "
-                        "alternated; ratio > 1 where this tree is slower")
-    for col in ("section", "figure", "this tree", commit[:9], "unit", "ratio", f"within x{SLOWER_BAR:g}"):
+                        "alternated; ratio > 1 where this tree is slower; run spread: largest over smallest run")
+    for col in ("section", "figure", "this tree", commit[:9], "unit", "ratio", "run spread", f"within x{SLOWER_BAR:g}"):
         table.add_column(col)
     for r in rows:
         table.add_row(r["section"], r["name"], *("" if v is None else figure_text(v) for v in (r["ours"], r["theirs"])),
-                      r["unit"], "" if r["ratio"] is None else f"{r['ratio']:.2f}",
+                      r["unit"], *("" if r[k] is None else f"{r[k]:.2f}" for k in ("ratio", "spread")),
                       "" if r["ratio"] is None else "NO" if r["slower"] else "yes")
     console.print(table)

@@ -38,6 +38,9 @@ def test_rows_pair_by_name_over_the_median_of_the_runs():
     for name in ("b", "note", "gone"):  # a row one tree lacks, or a note, has no ratio and no flag
         assert rows[name]["ratio"] is None and not rows[name]["slower"]
     assert rows["b"]["ours"] == 6.0 and rows["gone"]["ours"] is None
+    # the run-to-run spread: the larger tree's largest over smallest run figure
+    assert rows["a"]["spread"] == 3.0 and rows["b"]["spread"] == pytest.approx(7.0 / 5.0)
+    assert rows["gone"]["spread"] == 1.0 and rows["note"]["spread"] is None
 
 
 @pytest.fixture(scope="module")
@@ -90,6 +93,7 @@ def test_against_prints_both_trees_and_marks_the_rows_past_the_bar(monkeypatch, 
     assert [c[0] for c in calls] == [True, False, False, True, True, False]
     assert all(c[1:] == (("reconstruct",), 3) for c in calls)
     lines = {ln.split("│")[2].strip(): ln for ln in res.output.splitlines() if ln.count("│") > 6}
+    assert "run spread" in res.output
     assert "2.00" in lines["fit"] and "NO" in lines["fit"]  # twice as slow: past x1.5
     assert "0.83" in lines["frame"] and "yes" in lines["frame"]
     assert head[:9] in res.output
