@@ -160,4 +160,3 @@ def bench_command(
             table.add_row(r.section, r.name, figure_text(r.value), "" if r.best is None else f"{r.best:.3f}",
                           r.unit, "" if r.target is None else f"<= {r.target:g}", ok, r.note)
     Console(width=max(160, Console().width)).print(table)
-
