@@ -85,12 +85,20 @@ def resolve_commit(rev: str, clone: Path = CLONE_ROOT) -> str:
 
 @contextmanager
 def tree_at(commit: str, clone: Path = CLONE_ROOT) -> Iterator[Path]:
-    """The files of ``commit`` (``git archive``) in a temporary folder, removed on leaving."""
+    """The files of ``commit`` (``git archive``) in a temporary folder, removed on leaving.
+
+    Raises
+    ------
+    RuntimeError
+        Where git or tar fails (tar's message).
+    """
     folder = Path(tempfile.mkdtemp(prefix=f"simtest-bench-{commit[:9]}-"))
-    try:
-        archive = subprocess.run(["git", "-C", str(clone), "archive", "--format=tar", commit],
-                                 capture_output=True, check=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True, capture_output=True)
+    try:  # git's tar stream straight into tar (about 100 MB with the reports: not held here)
+        git = subprocess.Popen(["git", "-C", str(clone), "archive", "--format=tar", commit], stdout=subprocess.PIPE)
+        tar = subprocess.run(["tar", "-x", "-C", str(folder)], stdin=git.stdout, capture_output=True)
+        git.stdout.close()
+        if git.wait() or tar.returncode:
+            raise RuntimeError(f"could not extract {commit[:9]}: {tar.stderr.decode(errors='replace').strip()}")
         yield folder
     finally:
         shutil.rmtree(folder, ignore_errors=True)
@@ -184,7 +192,7 @@ def side_by_side(rev: str, sections: Sequence[str], repeat: int, rounds: int = R
     LookupError
         ``rev`` is no commit of the clone (:func:`resolve_commit`).
     RuntimeError
-        A tree's benchmarks failed (:func:`run_tree`).
+        ``rev``'s files could not be extracted (:func:`tree_at`), or a tree's benchmarks failed (:func:`run_tree`).
     """
     commit = resolve_commit(rev, clone)
     ours_runs: list[list[dict]] = []
