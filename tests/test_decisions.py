@@ -52,6 +52,7 @@ NOT_DECISIONS = {
     "lightaware.patch._VALLEY_STEP": _SOLVER,
     "lightaware.plane.RETRY_START_DEPTHS": _SOLVER,
     "lightaware.plane_solve._SOLVES_KEPT": "a cache's size: a solve remembered is the solve redone, bit for bit",
+    "lightaware.plane_model._BASES_KEPT": "a cache's size: a basis kept is the basis computed again, bit for bit",
     "lightaware.plane_solve.REFINE_MAX_PIXELS": "a cost bound: a larger ROI's refinement takes a sub-grid, "
                                                 "its fit judged by the decisions after",
     "lightaware.plane_model.CAP_LIGHTS": "a cost bound: the pixel caps' share under a rig of more lights, "

@@ -24,6 +24,9 @@ _NOT_FINITE_RESIDUAL = 1e6
 #: guides: a rig of L lights fits ``CAP_LIGHTS / L`` of them, each model evaluation costing pixels times lights.
 CAP_LIGHTS = 2
 
+#: Background bases :meth:`PlaneModel._background_basis` keeps (oldest out): the active sets one solve visits.
+_BASES_KEPT = 4
+
 #: Gauss-Newton steps on log n alone that refine the photometric fit's start roughness.
 _ROUGHNESS_START_STEPS = 3
 
@@ -78,8 +81,6 @@ class PlaneModel:
         self.sub = np.array([(du_, dv_) for dv_ in offs for du_ in offs])  # (ss^2, 2)
         self.rig_arr = _rig_arrays(rig)
         self.bp = np.asarray(bp_uv, dtype=np.float64).reshape(2)
-        self.state = {}
-        self.proj = {}  # orthonormal basis of the (weighted) background columns, per weights
         self.use(s.max_pixels)
 
     def use(self, mp, keep_=None):
@@ -101,10 +102,8 @@ class PlaneModel:
         self.general = bool(self.diffuse or self.cens.any() or self.ggx)
         self.rl, self.yn = _ray_light(self.rig_arr[0], dT_), y_ / yscale_
         self.clipn = ((y_ / yscale_ if lower is not None else float(clip_level) / yscale_) if censor else np.inf)
-        self.state.clear()
-        self.proj.clear()
-        self.lin = {}  # the background's basis on the active rows (resjac_general)
-        self.starts = {}  # start_roughness per start plane
+        # caches: the last evaluation; the background's basis per weights (proj), per active set (lin); start roughness
+        self.state, self.proj, self.lin, self.starts = {}, {}, {}, {}
         self._digest = None  # (:meth:`digest`, computed when first asked for)
 
     def digest(self) -> bytes:
@@ -190,13 +189,14 @@ class PlaneModel:
 
     def _background_basis(self, active, w):
         """``(QT, R, om)``: the row weights ``om`` (``w`` on active rows, 0 elsewhere; None: all 1) and the
-        QR of the weighted background, kept while the active rows stay."""
-        c = self.lin
-        if not (c and c["w"] is w and np.array_equal(c["active"], active)):
+        QR of the weighted background, kept for :data:`_BASES_KEPT` active sets (a solve goes back and forth)."""
+        hit = self.lin.get(key := active.tobytes())
+        if hit is None or hit[0] is not w:
             om = None if w is None and active.all() else np.where(active, 1.0 if w is None else w, 0.0)
             QT, R = _qr_rows(self.design.T[-3:] if om is None else self.design.T[-3:] * om, om is not None)
-            c.update(w=w, active=active, QT=QT, R=R, om=om)
-        return c["QT"], c["R"], c["om"]
+            hit = self.lin[key] = (w, QT, R, om)
+            self.lin = dict(list(self.lin.items())[-_BASES_KEPT:])  # (the oldest out)
+        return hit[1:]
 
     def _linear_part(self, active, target, w):
         """The linear parameters on the active rows, weighted by ``w``, and the columns' orthonormal basis
