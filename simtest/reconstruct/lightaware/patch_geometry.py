@@ -66,20 +66,22 @@ def _patch_lobes(d, X, ns, ok, s, rough, rig_arr):
 
 
 def _quadric_frame(e1, e2, b_ray, p, Lm):
-    """The apex depth s, apex P0 and frame (N, t1, t2) of the quadric patch ``p`` (e1, e2: b_ray's basis)."""
-    s = np.exp(p[2])
-    P0 = s * unit(b_ray + p[0] * e1 + p[1] * e2)
-    N = unit(unit(-P0) + unit(Lm - P0))
-    return (s, P0, N, *plane_basis(N))
+    """The apex depth s, apex P0 and frame (N, t1, t2) of the quadric patch ``p`` (e1, e2: b_ray's basis), or of K
+    patches ``p`` (K, k) as arrays (K,) and (K, 3), each bit for bit its own (norms by ``np.vecdot``: norm's dot)."""
+    def unit_rows(v):
+        return v / np.sqrt(np.vecdot(v, v))[:, None]
+    P0 = np.exp((q := np.atleast_2d(p))[:, 2:3]) * unit_rows(b_ray + q[:, 0:1] * e1 + q[:, 1:2] * e2)
+    N = unit_rows(unit_rows(-P0) + unit_rows(Lm - P0))
+    t1 = unit_rows(np.cross(N, np.where((np.abs(N[:, :1]) < 0.9), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))))  # plane_basis
+    frame = (np.exp(q[:, 2]), P0, N, t1, np.cross(N, t1))  # (np.cross: cross3's products, bit for bit)
+    return frame if np.ndim(p) == 2 else tuple(v[0] for v in frame)
 
 
 def _quadric_image(d, b_ray, p, rig_arr, Lm):
     """Specular image (N,) of the quadric patch ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``
     along rays d and its apex normal (3,) (:func:`quadric_fit`); for K patches ``p`` (K, 7), images
     (K, N), each bit for bit its own, and normals (K, 3). Rays that miss give 0."""
-    basis = plane_basis(b_ray)  # each patch's apex and frame its own (the same bits)
-    frames = [_quadric_frame(*basis, b_ray, pk, Lm) for pk in np.atleast_2d(p)]
-    s, P0, N, t1, t2 = frames[0] if np.ndim(p) == 1 else (np.array(v) for v in zip(*frames))
+    s, P0, N, t1, t2 = _quadric_frame(*plane_basis(b_ray), b_ray, p, Lm)  # each patch's its own (the same bits)
     s = s if np.ndim(p) == 1 else s[:, None]
     kxx, kxy, kyy = p[..., 3:4] / s, p[..., 4:5] / s, p[..., 5:6] / s
     # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray X = t d
@@ -99,9 +101,7 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
     patch in front of the camera, the apex normal, the apex depth s and the apex frame ``(P0, t1, t2, N)``. For K
     patches ``p`` (K, 11): X, ns (K, N, 3), ok (K, N), N (K, 3), s (K, 1), each bit for bit its own."""
     one = np.ndim(p) == 1
-    basis = plane_basis(b_ray)
-    frames = [_quadric_frame(*basis, b_ray, pk, Lm) for pk in np.atleast_2d(p)]
-    s, P0, N, t1, t2 = frames[0] if one else (np.array(v) for v in zip(*frames))
+    s, P0, N, t1, t2 = _quadric_frame(*plane_basis(b_ray), b_ray, p, Lm)
     s = s if one else s[:, None]
     kxx, kxy, kyy = (p[3] / s, p[4] / s, p[5] / s) if one else (p[:, 3:4] / s, p[:, 4:5] / s, p[:, 5:6] / s)
     kzz = 0.5 * (kxx + kyy)
