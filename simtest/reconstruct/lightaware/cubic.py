@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from simtest._lazy import require
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.patch import (
@@ -13,7 +12,7 @@ from simtest.reconstruct.lightaware.patch import (
 )
 from simtest.reconstruct.lightaware.patch_geometry import PATCH_PARAMS as _CUBIC_PARAMS
 from simtest.reconstruct.lightaware.patch_geometry import _cubic_patch_geometry, _cubic_patch_image
-from simtest.reconstruct.lightaware.solve import _implausible
+from simtest.reconstruct.lightaware.solve import _implausible, lm_least_squares
 
 #: Largest ratio between neighbouring depths of :func:`patch_depth_profile`, whose fits start
 #: from their neighbour's solution.
@@ -146,7 +145,6 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_lev
            section 3-3 (the local height function and its Taylor terms).
     .. [3] G. H. Golub, V. Pereyra, SIAM J. Numer. Anal. 10(2), 1973. https://doi.org/10.1137/0710036
     """
-    opt = require("scipy.optimize")  # when first needed: scipy slows the start
     name = "cubic_patch_fit"
     S = _cubic_setup(values, origin_uv, bp_uv, camera, rig, clip_level, max_pixels)
     if S is None:
@@ -156,10 +154,9 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_lev
     if not np.isfinite(cost).any():
         return LightAwareEstimate(name, "not_converged", "no finite profile", n_evaluations=nfev)
     i0 = int(np.argmin(cost))
-    with np.errstate(all="ignore"):
-        r = opt.least_squares(S["res"], sol[i0], method="lm", x_scale=S["x_scale"],
-                              max_nfev=max_nfev * (_CUBIC_PARAMS + 1), ftol=1e-8, xtol=1e-8,
-                              workers=lambda f, xs: list(S["res"](np.array(list(xs)))))  # one batch
+    with np.errstate(all="ignore"):  # (batched: the finite differences' points as one batch)
+        r = lm_least_squares(S["res"], sol[i0], x_scale=S["x_scale"], max_nfev=max_nfev * (_CUBIC_PARAMS + 1),
+                             ftol=1e-8, xtol=1e-8, batched=True)
     nfev += r.nfev
     x = r.x
     s_hat, rough = float(np.exp(x[2])), float(np.exp(x[6]))

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simtest._lazy import require
 from simtest.decisions import ONE_LIGHT_DEPTH_FACTOR
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
@@ -17,7 +16,9 @@ from simtest.reconstruct.lightaware.model import _mean_light, _rays, _rig_arrays
 from simtest.reconstruct.lightaware.patch_geometry import (
     _light_normal_jacobian, _patch_specular_points, _quadric_image,
 )
-from simtest.reconstruct.lightaware.solve import _covariance, _hac_covariance, _implausible, _patch_verdict
+from simtest.reconstruct.lightaware.solve import (
+    _covariance, _hac_covariance, _implausible, _patch_verdict, lm_least_squares,
+)
 
 
 @dataclass
@@ -74,11 +75,8 @@ def _quadric_residual(P: _PatchProblem):
 
 def _quadric_lm(res, p0, x_scale, max_nfev):
     """Levenberg-Marquardt on the quadric's residual ``res`` from ``p0`` (scipy's result), each start's."""
-    with np.errstate(all="ignore"):
-        # workers: the finite differences' points imaged as one batch (bit for bit each alone)
-        return require("scipy.optimize").least_squares(res, p0, method="lm", max_nfev=max_nfev * 8, x_scale=x_scale,
-                                                       ftol=1e-6, xtol=1e-6,
-                                                       workers=lambda f, xs: list(res(np.array(list(xs)))))
+    with np.errstate(all="ignore"):  # (batched: the finite differences' points imaged at once, each bit for bit)
+        return lm_least_squares(res, p0, max_nfev=max_nfev * 8, x_scale=x_scale, ftol=1e-6, xtol=1e-6, batched=True)
 
 
 def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev):
@@ -398,7 +396,6 @@ def _valley_sigma_deg(G, covs, Gv, excess) -> float | None:
 def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
     """Least squares over ``free`` (indices) with log s fixed; the best of the starts.
     Returns ``(sum of squares, p, nfev)``."""
-    opt = require("scipy.optimize")  # when first needed: scipy slows the start
     free = np.asarray(free)
     best, nfev = None, 0
     for p0 in starts:
@@ -410,11 +407,9 @@ def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
             pp[:, free] = q
             return S["res"](pp if np.ndim(q) == 2 else pp[0])
 
-        with np.errstate(all="ignore"):
-            r = opt.least_squares(fun, base[free], method="lm", x_scale=S["x_scale"][free],
-                                  max_nfev=max_nfev * (len(free) + 1), ftol=tol, xtol=tol,
-                                  workers=(lambda f, xs: list(fun(np.array(list(xs))))) if S.get("batched")
-                                  else None)  # (as _quadric_starts': S's res takes a batch)
+        with np.errstate(all="ignore"):  # (as _quadric_starts': S's res takes a batch)
+            r = lm_least_squares(fun, base[free], x_scale=S["x_scale"][free], max_nfev=max_nfev * (len(free) + 1),
+                                 ftol=tol, xtol=tol, batched=bool(S.get("batched")))
         nfev += r.nfev
         if np.isfinite(r.cost) and (best is None or 2.0 * r.cost < best[0]):  # best[0]: a sum of squares
             pp = base.copy()

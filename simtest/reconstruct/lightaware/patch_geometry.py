@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from simtest._lazy import require
 from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
+from simtest.reconstruct.lightaware.solve import lm_least_squares
 
 #: Parameters of the cubic patch (the quadric's seven and four third-order coefficients).
 PATCH_PARAMS = 11
@@ -146,7 +146,6 @@ def _patch_specular_points(b_ray, p, Lm, lights):
     normals (J, 3) and depths (J,). Searched along the rays ``unit(b + u e1 + v e2)`` by Levenberg-Marquardt
     from the apex's ray, where the normal bisects the directions to the camera and the light; NaN rows where
     it fails."""
-    opt = require("scipy.optimize")  # when first needed: scipy slows the start
     p = np.concatenate([p, np.zeros(PATCH_PARAMS - len(p))])  # a quadric: the third-order terms 0
     e1, e2 = plane_basis(b_ray)
     ray0 = np.array([p[0], p[1]], dtype=np.float64)
@@ -161,7 +160,7 @@ def _patch_specular_points(b_ray, p, Lm, lights):
             return np.array([c @ e1, c @ e2])
 
         with np.errstate(all="ignore"):
-            r = opt.least_squares(f, ray0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
+            r = lm_least_squares(f, ray0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
         X, ns, ok, _, _, _ = _cubic_patch_geometry(unit(b_ray + r.x[0] * e1 + r.x[1] * e2)[None], b_ray, p, Lm)
         if ok[0] and float(np.max(np.abs(r.fun))) < 1e-9:
             normals[j], depths[j] = ns[0], float(np.linalg.norm(X[0]))

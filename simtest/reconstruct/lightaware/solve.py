@@ -65,6 +65,48 @@ def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
     return resid_var * np.linalg.inv(jn) / np.outer(scale, scale)
 
 
+#: The guard column's value (a power of 2: its finite difference is exact), far below any real column's norm.
+_GUARD = 2.0**-900
+
+
+def lm_least_squares(fun, x0, *, x_scale=None, batched: bool = False, **options):
+    """``scipy.optimize.least_squares(fun, x0, method="lm", ...)`` with a guard: a last parameter z, residual
+    ``_GUARD z`` (0: LM keeps z at 0), read by no other residual. SciPy's C MINPACK (1.16.3, 1.17.1) recomputes a
+    column's norm one element too far (qrfac), past the last column into heap garbage, so a solve could end in two
+    places; the guard is pivoted last and reads a zero there, every other number unchanged. ``batched``: ``fun``
+    takes (K, n) points (the finite differences' as one batch). ``x``, ``fun``, ``jac`` without the guard."""
+    n, last = len(x0), {}  # last: the latest point's residuals (the guard's finite difference is at that point)
+    def guarded(q):
+        q = np.asarray(q, dtype=np.float64)
+        if q.ndim == 1:
+            last.update(key=q[:n].tobytes(), r=fun(q[:n]))
+            return np.append(last["r"], _GUARD * q[n])
+        rows = [last["r"] if p.tobytes() == last.get("key") else None for p in q[:, :n]]  # (a batch's rows: their
+        todo = [k for k, v in enumerate(rows) if v is None]                                 # points' alone, bit for bit)
+        for k, v in zip(todo, fun(q[todo, :n]) if todo else ()):
+            rows[k] = v
+        return np.column_stack([np.array(rows), _GUARD * q[:, n]])
+
+    kw = {"workers": lambda f, qs: list(guarded(np.array(list(qs))))} if batched else {}
+    scale = None if x_scale is None else np.append(x_scale, 1.0)
+    r = require("scipy.optimize").least_squares(guarded, np.append(np.asarray(x0, np.float64), 0.0), method="lm",
+                                                 x_scale=scale, **kw, **options)
+    r.x, r.fun, r.jac = r.x[:n], r.fun[:-1], r.jac[:-1, :n]
+    return r
+
+
+def _leastsq(opt, fun, jac, q, w, **options):
+    """``opt.leastsq(fun, q, args=(w,), Dfun=jac, ...)``'s ``(q, ier)`` with :func:`lm_least_squares`' guard column."""
+    n = len(q)
+    def jac_g(z, w):
+        J = jac(z[:n], w)
+        return np.block([[J, np.zeros((len(J), 1))], [np.zeros((1, n)), np.full((1, 1), _GUARD)]])
+
+    z, ier = opt.leastsq(lambda z, w: np.append(fun(z[:n], w), _GUARD * z[n]), np.append(q, 0.0), args=(w,),
+                         Dfun=jac_g, **options)
+    return z[:n], ier
+
+
 #: Levenberg-Marquardt's tolerances (MINPACK's ftol, xtol, gtol) in the light-aware fits: a relative
 #: cost change below 1e-8 leaves the solution within about ``1e-4 sqrt(m)`` standard deviations (m residuals).
 _LM_TOL = 1e-8
@@ -153,13 +195,13 @@ def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None
                 tol = _LM_TOL if it or loss == "linear" else _LM_TOL_FIRST_PASS
                 done, budget = False, max_nfev + count[0]
                 if newton and (it or loss == "linear"):  # Newton's steps take LM's linear tail (_newton)
-                    q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=_LM_TOL_NEWTON, ftol=_LM_TOL_NEWTON,
-                                         gtol=tol, maxfev=max_nfev)
+                    q, ier = _leastsq(opt, fun, jac, q, w, xtol=_LM_TOL_NEWTON, ftol=_LM_TOL_NEWTON, gtol=tol,
+                                      maxfev=max_nfev)
                     late = count[0] + max_nfev - budget > _NEWTON_AFTER
                     q, done = _newton(fun, jac, q, w, tol) if late else (q, False)
                 if not done:  # (the pass' evaluations within max_nfev)
-                    q, ier = opt.leastsq(fun, q, args=(w,), Dfun=jac, xtol=tol, ftol=tol, gtol=tol,
-                                         maxfev=max(budget - count[0], 1))
+                    q, ier = _leastsq(opt, fun, jac, q, w, xtol=tol, ftol=tol, gtol=tol,
+                                      maxfev=max(budget - count[0], 1))
             ok = ier in (1, 2, 3, 4) and bool(np.isfinite(q).all())
             msg = "" if ier in (1, 2, 3, 4) else (str(caught[-1].message) if caught else f"MINPACK info {ier}")
     except _RanOff as off:  # (the residuals at its point are the cache's last)
