@@ -100,7 +100,9 @@ def _leastsq(opt, fun, jac, q, w, **options):
     n = len(q)
     def jac_g(z, w):
         J = jac(z[:n], w)
-        return np.block([[J, np.zeros((len(J), 1))], [np.zeros((1, n)), np.full((1, 1), _GUARD)]])
+        out = np.zeros((len(J) + 1, n + 1))  # [[J, 0], [0, _GUARD]]
+        out[:-1, :n], out[-1, n] = J, _GUARD
+        return out
 
     z, ier = opt.leastsq(lambda z, w: np.append(fun(z[:n], w), _GUARD * z[n]), np.append(q, 0.0), args=(w,),
                          Dfun=jac_g, **options)
