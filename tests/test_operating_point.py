@@ -110,7 +110,7 @@ def test_a_minimum_outside_zero_to_one_is_refused_in_one_line(tmp_path):
     res = CliRunner().invoke(app, ["reconstruct", str(TILE), "-k", str(K_FILE), "-o", str(tmp_path / "o"),
                                    "--min-confidence", "1.5"])
     assert res.exit_code == 2 and "min-confidence" in res.output
-    with pytest.raises(ValueError, match="min_confidence must be in"):
+    with pytest.raises(ValueError, match="min_confidence: must be in"):
         ReconSettings(min_confidence=-0.1)
 
 

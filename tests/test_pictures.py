@@ -125,11 +125,15 @@ def test_reconstruct_outputs_are_replaced_as_a_set(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize(
     ("args", "msg"),
-    [(["--smooth", "1e6"], "smooth_sigma_px must be finite and in [0, 100] px"),
-     (["--smooth", "nan"], "smooth_sigma_px must be finite and in [0, 100] px"),
-     (["-t", "0.3", "-t", "0.3"], "isovalues: 0.3 is given twice")],
+    [(["--smooth", "1e6"], "error: --smooth: must be finite and in [0, 100] px, got 1000000.0"),
+     (["--smooth", "nan"], "error: --smooth: must be finite and in [0, 100] px, got nan"),
+     (["-t", "0.3", "-t", "0.3"], "error: --isovalue: 0.3 is given twice"),
+     (["-t", "1.5"], "error: --isovalue: 1.5 is outside the open interval (0, 1)"),
+     (["--normalise", "peak"], "error: --normalise: 'peak' is not one of"),
+     (["--detection", "blob"], "error: --detection: 'blob' is not one of")],
 )
 def test_reconstruct_refuses_bad_options_in_one_line(tmp_path, args, msg):
+    # the line names the option the user typed, not the setting's field behind it
     png, cam = _scene(tmp_path)
     out = tmp_path / "out"
     res = runner.invoke(app, ["reconstruct", str(png), "-k", str(cam), "-o", str(out), *args])
@@ -182,3 +186,22 @@ def test_3d_view_renders_off_screen_without_a_display(tmp_path, monkeypatch):
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["estimates.json", "overlay.png", "view.png"]
     assert json.loads((tmp_path / "r" / "estimates.json").read_text())["camera"]["model"] == "pinhole"
     assert "DISPLAY" not in os.environ
+
+
+def test_every_mapped_setting_is_a_field_set_by_an_option_of_the_command():
+    # the map from a refused setting to the option that set it cannot go stale: each key is a
+    # ReconSettings field and each option is one that `simtest reconstruct` and `evaluate c3vd` take
+    import dataclasses
+
+    from simtest.reconstruct.cli import SETTING_OPTIONS, option_message
+    from simtest.reconstruct.settings import ReconSettings, SettingError
+
+    fields = {f.name for f in dataclasses.fields(ReconSettings)}
+    assert set(SETTING_OPTIONS) <= fields
+    c3vd = {"isovalues", "normalise", "smooth_sigma_px", "detection"}  # the settings evaluate c3vd takes
+    for command, taken in ((["reconstruct", "--help"], set(SETTING_OPTIONS)), (["evaluate", "c3vd", "--help"], c3vd)):
+        text = runner.invoke(app, command, env={"COLUMNS": "200"}).output
+        assert all(SETTING_OPTIONS[name] in text for name in taken), (command, text)
+    # a setting a user cannot pass keeps its field name; another error is left as it is
+    assert option_message(SettingError("peak_rel", "must be in (0, 1), got 2")) == "peak_rel: must be in (0, 1), got 2"
+    assert option_message(ValueError("frame.png: cannot decode")) == "frame.png: cannot decode"

@@ -29,7 +29,7 @@ from simtest.geometry.response import ResponseError
 from simtest.harness.report.figures import figure_png
 from simtest._exit import BAD_INPUT, fail
 from simtest._outdir import check_out_folder, write_out_folder
-from simtest.reconstruct.cli import check_workers, reconstruct_single
+from simtest.reconstruct.cli import check_workers, option_message, reconstruct_single
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.settings import ReconSettings
 
@@ -113,7 +113,7 @@ def c3vd_command(
         text = json.dumps(results, indent=1, allow_nan=False) + "\n"
         page = render_html(results)
     except (ValueError, OSError, ImportError) as exc:  # C3VDError, CameraFileError, settings: ValueErrors
-        fail(exc, BAD_INPUT)
+        fail(option_message(exc), BAD_INPUT)
 
     def fill(folder: Path) -> None:
         (folder / "results.json").write_text(text, encoding="ascii")

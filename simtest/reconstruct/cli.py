@@ -49,6 +49,19 @@ from simtest.reconstruct.view3d import render_view, surface_from_depth
 #: The estimators whose normals ``estimates.json`` carries (:mod:`simtest.reconstruct.registry`).
 _DRAWN = names("isophote", "baseline", "light_aware")
 
+#: The option that sets each :class:`ReconSettings` field on the command line (``reconstruct``,
+#: ``evaluate c3vd``): a refused value is named by what the user typed.
+SETTING_OPTIONS = {"isovalues": "--isovalue", "normalise": "--normalise", "smooth_sigma_px": "--smooth",
+                   "detection": "--detection", "max_candidates": "--max-candidates",
+                   "min_confidence": "--min-confidence"}
+
+
+def option_message(exc: Exception) -> str:
+    """``exc``'s line, a refused setting (:class:`~simtest.reconstruct.settings.SettingError`) named by its
+    option (:data:`SETTING_OPTIONS`): ``"--smooth: must be finite and in [0, 100] px, got -1.0"``."""
+    option = SETTING_OPTIONS.get(getattr(exc, "setting", None))
+    return f"{option}: {exc.reason}" if option else str(exc)
+
 
 def reconstruct_command(
     image: Path = typer.Argument(..., help="Image file (PNG, JPEG, TIFF, ... or .npy).", show_default=False),
@@ -107,7 +120,7 @@ def reconstruct_command(
                                             smooth_sigma_px=smooth_sigma_px, detection=detection,
                                             max_candidates=max_candidates or None, min_confidence=min_confidence)
     except ValueError as exc:
-        fail(exc, BAD_INPUT)
+        fail(option_message(exc), BAD_INPUT)
     check_workers(workers)
     if output_format not in SEQUENCE_FORMATS:
         fail(f"--format {output_format}: not one of {', '.join(SEQUENCE_FORMATS)}", BAD_INPUT)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from simtest.decisions import BRIGHTNESS_REL, FRAME_ISOVALUES, MIN_AREA_PX, PEAK_REL
 
-__all__ = ["MAX_CANDIDATES", "Normalisation", "ReconSettings", "validate_isovalues"]
+__all__ = ["MAX_CANDIDATES", "Normalisation", "ReconSettings", "SettingError", "validate_isovalues"]
 
 
 class Normalisation(enum.StrEnum):
@@ -34,6 +34,16 @@ class Normalisation(enum.StrEnum):
     #: LOCAL where the median of the ROI border is at least :data:`AUTO_LOCAL_BACKGROUND_REL` of
     #: the BP intensity (a highlight on bright tissue), else BP (the default for whole frames).
     AUTO = "auto"
+
+
+class SettingError(ValueError):
+    """A reconstruction setting refused: ``setting`` is its :class:`ReconSettings` field, ``reason`` what
+    is wrong with the value given (the value shown); the message is ``"<setting>: <reason>"``. A command
+    line names the option instead (:func:`simtest.reconstruct.cli.option_message`)."""
+
+    def __init__(self, setting: str, reason: str):
+        super().__init__(f"{setting}: {reason}")
+        self.setting, self.reason = setting, reason
 
 
 #: Candidate detection methods (see :func:`simtest.reconstruct.detect.detect_specularities`).
@@ -55,25 +65,25 @@ def validate_isovalues(isovalues) -> tuple[float, ...]:
 
     Raises
     ------
-    ValueError
-        If the sequence is empty, a value is not a number or lies outside (0, 1), or a value is
-        given twice; the message starts with ``isovalues:`` and shows the value.
+    SettingError
+        A ValueError, if the sequence is empty, a value is not a number or lies outside (0, 1), or a
+        value is given twice; the message starts with ``isovalues:`` and shows the value.
     """
     if isinstance(isovalues, (str, bytes)):
-        raise ValueError(f"isovalues: {isovalues!r} is not a number")
+        raise SettingError("isovalues", f"{isovalues!r} is not a number")
     vals = [isovalues] if np.ndim(isovalues) == 0 else list(np.asarray(isovalues, dtype=object).ravel())
     if not vals:
-        raise ValueError("isovalues: an empty sequence was given; need at least one t in (0, 1)")
+        raise SettingError("isovalues", "an empty sequence was given; need at least one t in (0, 1)")
     out = []
     for v in vals:
         try:
             t = float(v)
         except (TypeError, ValueError):
-            raise ValueError(f"isovalues: {v!r} is not a number") from None
+            raise SettingError("isovalues", f"{v!r} is not a number") from None
         if not (math.isfinite(t) and 0.0 < t < 1.0):
-            raise ValueError(f"isovalues: {t!r} is outside the open interval (0, 1)")
+            raise SettingError("isovalues", f"{t!r} is outside the open interval (0, 1)")
         if t in out:  # the same isophote twice would count twice in the joint cone axis
-            raise ValueError(f"isovalues: {t!r} is given twice; give each isovalue once")
+            raise SettingError("isovalues", f"{t!r} is given twice; give each isovalue once")
         out.append(t)
     return tuple(out)
 
@@ -84,9 +94,9 @@ def _positive_or_none(name: str, value) -> float | None:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name}: {value!r} is not a number") from None
+        raise SettingError(name, f"{value!r} is not a number") from None
     if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be finite and positive, got {value!r}")
+        raise SettingError(name, f"must be finite and positive, got {value!r}")
     return v
 
 
@@ -150,8 +160,8 @@ class ReconSettings:
 
     Raises
     ------
-    ValueError
-        Naming the field and the value, for any value outside the ranges above.
+    SettingError
+        A ValueError naming the field and the value, for any value outside the ranges above.
 
     Examples
     --------
@@ -187,42 +197,42 @@ class ReconSettings:
             set_(self, "normalise", Normalisation(self.normalise))
         except ValueError:
             modes = tuple(m.value for m in Normalisation)
-            raise ValueError(f"normalise: {self.normalise!r} is not one of {modes}") from None
+            raise SettingError("normalise", f"{self.normalise!r} is not one of {modes}") from None
         if self.smooth_sigma_px is not None:
             sigma = _number(self.smooth_sigma_px)
             if not (math.isfinite(sigma) and 0.0 <= sigma <= 100.0):
-                raise ValueError(f"smooth_sigma_px must be finite and in [0, 100] px, got {self.smooth_sigma_px!r}")
+                raise SettingError("smooth_sigma_px", f"must be finite and in [0, 100] px, got {self.smooth_sigma_px!r}")
             set_(self, "smooth_sigma_px", sigma)
         if self.detection not in DETECTION_METHODS:
-            raise ValueError(f"detection: {self.detection!r} is not one of {DETECTION_METHODS}")
+            raise SettingError("detection", f"{self.detection!r} is not one of {DETECTION_METHODS}")
         prel = _number(self.peak_rel)
         if not 0.0 < prel < 1.0:
-            raise ValueError(f"peak_rel must be in (0, 1), got {self.peak_rel!r}")
+            raise SettingError("peak_rel", f"must be in (0, 1), got {self.peak_rel!r}")
         set_(self, "peak_rel", prel)
         for name in ("allow_open", "verify"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+                raise SettingError(name, f"must be true or false, got {getattr(self, name)!r}")
             set_(self, name, bool(getattr(self, name)))
         if self.min_confidence is not None:
             conf = _number(self.min_confidence)
             if not 0.0 <= conf <= 1.0:
-                raise ValueError(f"min_confidence must be in [0, 1] or None, got {self.min_confidence!r}")
+                raise SettingError("min_confidence", f"must be in [0, 1] or None, got {self.min_confidence!r}")
             set_(self, "min_confidence", conf)
         set_(self, "full_scale", _positive_or_none("full_scale", self.full_scale))
         set_(self, "saturation_level", _positive_or_none("saturation_level", self.saturation_level))
         rel = _number(self.brightness_rel)
         if not 0.0 < rel < 1.0:
-            raise ValueError(f"brightness_rel must be in (0, 1), got {self.brightness_rel!r}")
+            raise SettingError("brightness_rel", f"must be in (0, 1), got {self.brightness_rel!r}")
         set_(self, "brightness_rel", rel)
         if isinstance(self.min_area_px, bool) or not float(self.min_area_px).is_integer() or self.min_area_px < 1:
-            raise ValueError(f"min_area_px must be an integer >= 1, got {self.min_area_px!r}")
+            raise SettingError("min_area_px", f"must be an integer >= 1, got {self.min_area_px!r}")
         set_(self, "min_area_px", int(self.min_area_px))
         if self.max_candidates is not None:
             if (not isinstance(self.max_candidates, (int, float, np.integer, np.floating))
                     or isinstance(self.max_candidates, bool) or not float(self.max_candidates).is_integer()
                     or self.max_candidates < 1):
-                raise ValueError(f"max_candidates must be an integer >= 1 or None (every "
-                                 f"component), got {self.max_candidates!r}")
+                raise SettingError("max_candidates", f"must be an integer >= 1 or None (every component), "
+                                                   f"got {self.max_candidates!r}")
             set_(self, "max_candidates", int(self.max_candidates))
 
     @classmethod
