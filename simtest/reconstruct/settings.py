@@ -170,10 +170,10 @@ class ReconSettings:
     ((0.1, 0.3), True)
     >>> s.replace(isovalues=0.5).isovalues
     (0.5,)
-    >>> ReconSettings(isovalues=1.5)
+    >>> ReconSettings(isovalues=1.5)  # doctest: +IGNORE_EXCEPTION_DETAIL
     Traceback (most recent call last):
     ...
-    ValueError: isovalues: 1.5 is outside the open interval (0, 1)
+    SettingError: isovalues: 1.5 is outside the open interval (0, 1)
     """
 
     isovalues: tuple[float, ...] = (0.1,)
