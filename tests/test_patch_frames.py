@@ -42,3 +42,15 @@ def test_a_batch_of_patches_gives_each_patchs_frame_bit_for_bit(seed, k, near_x)
         single = _quadric_frame(e1, e2, b_ray, P[i], Lm)  # one patch's parameters alone
         for got, want in zip(single, one):
             assert np.array_equal(got, want)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 9), st.sampled_from([(0, 1), (2, 0), (1, 2)]))
+def test_plane_basis_of_a_stack_of_normals_is_each_normals_own_bit_for_bit(seed, k, axes):
+    rng = np.random.default_rng(seed)
+    normals = unit(rng.normal(size=(k, 3)), axis=-1)
+    normals[0] = unit(np.eye(3)[axes[0]] + 0.1 * rng.normal(size=3))  # past 0.9 on the first axis: the other helper
+    u, w = plane_basis(normals, axes)
+    for i in range(k):
+        ui, wi = plane_basis(normals[i], axes)
+        assert np.array_equal(u[i], ui) and np.array_equal(w[i], wi), i

@@ -237,20 +237,22 @@ def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.
 
     Parameters
     ----------
-    normal : array_like of shape (3,)
-        Unit normal.
+    normal : array_like of shape (3,) or (K, 3)
+        Unit normal, or K of them.
     axes : tuple of int
 
     Returns
     -------
-    u, w : ndarray of shape (3,)
+    u, w : ndarray of shape (3,) or (K, 3)
+        For K normals, each row bit for bit its normal's alone.
     """
     n = np.asarray(normal, dtype=np.float64)
     first, second = axes
-    helper = _AXES[first if abs(n[first]) < 0.9 else second]
-    u = cross3(n, helper)
-    u /= np.linalg.norm(u)
-    return u, cross3(n, u)
+    if n.ndim == 2:  # (np.cross: cross3's products; np.vecdot: np.linalg.norm's dot)
+        u = np.cross(n, np.where(np.abs(n[:, first:first + 1]) < 0.9, _AXES[first], _AXES[second]))
+        return (u := u / np.sqrt(np.vecdot(u, u))[:, None]), np.cross(n, u)
+    u = cross3(n, _AXES[first if abs(n[first]) < 0.9 else second])
+    return (u := u / np.linalg.norm(u)), cross3(n, u)
 
 
 #: The coordinate axes as tuples (helpers of :func:`plane_basis`).

@@ -37,9 +37,8 @@ class Normalisation(enum.StrEnum):
 
 
 class SettingError(ValueError):
-    """A reconstruction setting refused: ``setting`` is its :class:`ReconSettings` field, ``reason`` what
-    is wrong with the value given (the value shown); the message is ``"<setting>: <reason>"``. A command
-    line names the option instead (:func:`simtest.reconstruct.cli.option_message`)."""
+    """A setting refused: ``setting`` its :class:`ReconSettings` field, ``reason`` what is wrong with the value (shown);
+    the message ``"<setting>: <reason>"`` (a command line names the option: ``reconstruct.cli.option_message``)."""
 
     def __init__(self, setting: str, reason: str):
         super().__init__(f"{setting}: {reason}")
@@ -199,9 +198,9 @@ class ReconSettings:
             modes = tuple(m.value for m in Normalisation)
             raise SettingError("normalise", f"{self.normalise!r} is not one of {modes}") from None
         if self.smooth_sigma_px is not None:
-            sigma = _number(self.smooth_sigma_px)
+            sigma = _number(given := self.smooth_sigma_px)
             if not (math.isfinite(sigma) and 0.0 <= sigma <= 100.0):
-                raise SettingError("smooth_sigma_px", f"must be finite and in [0, 100] px, got {self.smooth_sigma_px!r}")
+                raise SettingError("smooth_sigma_px", f"must be finite and in [0, 100] px, got {given!r}")
             set_(self, "smooth_sigma_px", sigma)
         if self.detection not in DETECTION_METHODS:
             raise SettingError("detection", f"{self.detection!r} is not one of {DETECTION_METHODS}")

@@ -72,8 +72,7 @@ def _quadric_frame(e1, e2, b_ray, p, Lm):
         return v / np.sqrt(np.vecdot(v, v))[:, None]
     P0 = np.exp((q := np.atleast_2d(p))[:, 2:3]) * unit_rows(b_ray + q[:, 0:1] * e1 + q[:, 1:2] * e2)
     N = unit_rows(unit_rows(-P0) + unit_rows(Lm - P0))
-    t1 = unit_rows(np.cross(N, np.where((np.abs(N[:, :1]) < 0.9), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))))  # plane_basis
-    frame = (np.exp(q[:, 2]), P0, N, t1, np.cross(N, t1))  # (np.cross: cross3's products, bit for bit)
+    frame = (np.exp(q[:, 2]), P0, N, *plane_basis(N))
     return frame if np.ndim(p) == 2 else tuple(v[0] for v in frame)
 
 

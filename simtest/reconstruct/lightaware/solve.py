@@ -81,8 +81,8 @@ def lm_least_squares(fun, x0, *, x_scale=None, batched: bool = False, **options)
         if q.ndim == 1:
             last.update(key=q[:n].tobytes(), r=fun(q[:n]))
             return np.append(last["r"], _GUARD * q[n])
-        rows = [last["r"] if p.tobytes() == last.get("key") else None for p in q[:, :n]]  # (a batch's rows: their
-        todo = [k for k, v in enumerate(rows) if v is None]                                 # points' alone, bit for bit)
+        rows = [last["r"] if p.tobytes() == last.get("key") else None for p in q[:, :n]]  # each its point's alone
+        todo = [k for k, v in enumerate(rows) if v is None]
         for k, v in zip(todo, fun(q[todo, :n]) if todo else ()):
             rows[k] = v
         return np.column_stack([np.array(rows), _GUARD * q[:, n]])
