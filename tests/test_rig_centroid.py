@@ -7,6 +7,8 @@ two lobes with two maxima (the BP at one of them) are not, clipped or not.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -160,3 +162,17 @@ def test_a_frame_without_fits_makes_no_luma(monkeypatch):
     monkeypatch.setattr(rc, "luma", refuse)
     (out,) = rig_centroid(img, [est], K, SYMMETRIC)
     assert out is est
+
+
+def test_a_region_holding_another_accepted_highlights_bp_is_two_lobes_not_one():
+    # two accepted highlights in one bright region are two lobes the detector told apart: the
+    # centroid light's bisector of one fused lobe holds for neither. A rejected candidate there
+    # (a noise maximum on the same plateau) says nothing and leaves the rule alone
+    img = _frame(LOBES, sigma=6.0)
+    est = _highlight(img, (60.0, 60.0))
+    other = _highlight(img, (62.0, 60.0), fits={})
+    out = rig_centroid(img, [est, other], K, SYMMETRIC)
+    assert "rig_centroid" not in out[0].light_aware
+    rejected = dataclasses.replace(other, status="cluster")
+    out = rig_centroid(img, [est, rejected], K, SYMMETRIC)
+    assert out[0].light_aware["rig_centroid"].status == "depth_not_observable"

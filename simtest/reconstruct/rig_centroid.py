@@ -15,6 +15,7 @@ One fused lobe: the predicted specular points lie in the highlight's bright regi
 (:data:`~simtest.decisions.FUSED_LOBE_LEVEL`), at most :data:`~simtest.decisions.FUSED_SEPARATION_MAX`
 lobe sigmas apart (s from the region's width), and the centroid of the light above the region's
 edge lies within a quarter of their separation of the BP (half for a BP at one light's lobe).
+A region that holds another accepted highlight's BP is two lobes, not one.
 """
 
 from __future__ import annotations
@@ -110,23 +111,25 @@ def rig_centroid(image, estimates, camera, rig: LightRig | None, nominal_depth_m
     """
     if rig is None or not rig.has_separate_lights:
         return list(estimates)
+    peaks = np.array([e.bp_px for e in estimates if e.ok], np.float64).reshape(-1, 2)  # the accepted BPs
     out = []  # the frame's luma, made for the first highlight with fits if not given (most frames have none)
     for est in estimates:
         gray = luma(np.asarray(image)) if gray is None and est.light_aware else gray
-        r = _fused_lobe(gray, est, camera, rig, est.light_aware, nominal_depth_mm) if est.light_aware else None
+        r = _fused_lobe(gray, est, camera, rig, est.light_aware, nominal_depth_mm, peaks) if est.light_aware else None
         out.append(est if r is None else dataclasses.replace(est, light_aware={**est.light_aware, "rig_centroid": r}))
     return out
 
 
-def _fused_lobe(gray, est, camera, rig: LightRig, fits: dict, nominal_depth_mm: float) -> LightAwareEstimate | None:
-    """:func:`rig_centroid`'s estimate of one highlight, or None where it is not one fused lobe."""
+def _fused_lobe(gray, est, camera, rig: LightRig, fits: dict, nominal_depth_mm: float, peaks) -> LightAwareEstimate | None:
+    """:func:`rig_centroid`'s estimate of one highlight, or None where not one fused lobe (``peaks``: accepted BPs)."""
     depth, near, far, at = _depth_span(fits, nominal_depth_mm)
     bp = np.asarray(est.bp_px, dtype=np.float64)
     ray = _rays(camera, bp[None])[0]
     n = centroid_normal(bp, camera, rig, depth)
     pts = guide_specular_points(camera, rig, n, -float(n @ (depth * ray)))
     region = _bright_region(gray, est)
-    if region is None or not _inside(region, pts).all() or region[0].sum() < 3:
+    others = peaks[(peaks != bp).any(axis=1)]  # another accepted BP in the region: two lobes (module docstring)
+    if region is None or not _inside(region, pts).all() or region[0].sum() < 3 or _inside(region, others).any():
         return None
     rr, cc = np.nonzero(region[0])  # the lobe's sigma from the region's width across (docstring)
     across = float(np.linalg.eigvalsh(np.cov(np.vstack([cc, rr]).astype(np.float64)))[0])
