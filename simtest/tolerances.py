@@ -23,6 +23,10 @@ class Tolerances:
         it is treated as degenerate (a line pair or a point). 1e-12 is about 1e4 float64 epsilons:
         far below what a fitted ellipse of any size from 6 px to 10^4 px produces after
         normalisation, far above rounding noise.
+    reflection_rounding_deg : float
+        A plane's miss of the law of reflection at the BP below which it is the bisector's float
+        rounding (a guide's row, its BP at its plane's specular point: about 1e-15 deg), not a miss;
+        a plane fit's own lobe peak misses by 0.01 deg and more.
     isophote_noise_px, photometric_noise_rel, plane_misfit_rho, plane_misfit_rel, patch_misfit_rms_rel, depth_rel_sigma_max : float
         Decisions of the light-aware fits: :data:`simtest.decisions.ISOPHOTE_NOISE_PX`, ``PHOTOMETRIC_NOISE_REL``,
         ``PLANE_MISFIT_RHO``, ``PLANE_MISFIT_REL``, ``PATCH_MISFIT_RMS_REL`` and ``DEPTH_OBSERVABLE_REL_SIGMA``
@@ -73,6 +77,7 @@ class Tolerances:
     """
 
     conic_degenerate_rel: float = 1e-12
+    reflection_rounding_deg: float = 1e-9
     isophote_noise_px: float = decisions.ISOPHOTE_NOISE_PX
     photometric_noise_rel: float = decisions.PHOTOMETRIC_NOISE_REL
     plane_misfit_rho: float = decisions.PLANE_MISFIT_RHO

@@ -19,7 +19,7 @@ from simtest.reconstruct.frames import open_frames, reconstruct_frames
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.table import read_frames
 from simtest.reconstruct.pipeline import reconstruct
-from simtest.reconstruct.light_fits import with_light_aware
+from simtest.reconstruct.rig_centroid import light_aware_with_rig
 from simtest.reconstruct.settings import ReconSettings
 from test_lightaware import ROUGHNESS, plane_case
 
@@ -38,7 +38,7 @@ def _gamma_frame():
 def test_a_folders_frames_are_fitted_on_the_camera_files_response(tmp_path):
     # A folder's frames dropped the response (the fits ran on the gamma-encoded values: a Phong
     # lobe s^(1/2.2) fitted as n = 27 instead of 60). With it passed on, every frame's record is
-    # the single image's (with_light_aware with the response), bit for bit, and the lobe's
+    # the single image's (light_aware_with_rig with the response, as `simtest reconstruct` runs it), bit for bit, and the lobe's
     # roughness is the scene's (0.2 %: 8-bit quantisation of the encoded values; measured 59.89).
     rgb, cam, rig, resp = _gamma_frame()
     frames = tmp_path / "frames"
@@ -46,7 +46,7 @@ def test_a_folders_frames_are_fitted_on_the_camera_files_response(tmp_path):
     for i in range(2):
         cv2.imwrite(str(frames / f"f{i}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     settings = ReconSettings.for_frames()
-    single = with_light_aware(rgb, reconstruct(rgb, cam, settings=settings), cam, rig, response=resp)
+    single = light_aware_with_rig(rgb, reconstruct(rgb, cam, settings=settings), cam, rig, response=resp)
     expect = [estimate_to_dict(e, False) for e in single]
     fitted = [e for e in single if e.status == "ok"]
     assert fitted and fitted[0].light_aware["photometric_fit"].roughness == pytest.approx(ROUGHNESS, rel=2e-3)

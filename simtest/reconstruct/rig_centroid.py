@@ -28,11 +28,12 @@ import numpy as np
 from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, PAIR_DEPTH_MAX_MM,
                                PAIR_DEPTH_MIN_MM, PAIR_TOL_PX)
 from simtest.geometry.lights import Light, LightRig
+from simtest.tolerances import TOL
 from simtest.reconstruct.curved_lobes import curved_lobe_rows
 from simtest.reconstruct.detect import default_full_scale
 from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_light_aware
-from simtest.reconstruct.lightaware import LightAwareEstimate, bisector
+from simtest.reconstruct.lightaware import LightAwareEstimate, bisector, reflection_offset_deg
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.verify import WEAK_TWIN, specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
@@ -159,12 +160,33 @@ def _fused_lobe(gray, est, camera, rig: LightRig, fits: dict, nominal_depth_mm: 
         bp_ray_error_deg=bp_ray_error_deg(ray, at, rig))
 
 
+def _obeys_reflection(est, camera, rig: LightRig):
+    """``est`` with its ok plane fits' sigma raised by their normal's miss of the law of reflection at
+    the BP (:func:`~simtest.reconstruct.lightaware.bisector.reflection_offset_deg`): a plane's error on
+    a curved patch that its covariance does not see. A guide's row, its BP at its plane's specular
+    point, misses by nothing."""
+    fits = est.light_aware or {}
+    new = {}
+    if rig is None:
+        return est
+    for name in ("photometric_fit", "isocurve_fit"):
+        r = fits.get(name)
+        if r is None or r.status != "ok" or not r.distance_mm or r.normal_sigma_deg is None:
+            continue
+        off = reflection_offset_deg(est.bp_px, camera, rig, r.normal, r.distance_mm)
+        if off > TOL.reflection_rounding_deg:  # (NaN: its plane does not meet the BP's ray; not ok then)
+            new[name] = dataclasses.replace(r, normal_sigma_deg=r.normal_sigma_deg + off, detail=(
+                f"{r.detail}; " if r.detail else "") + f"its normal {off:.2g} deg off the law of reflection at the BP")
+    return dataclasses.replace(est, light_aware={**fits, **new}) if new else est
+
+
 def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, workers: int = 1, on_highlight=None,
                          **kwargs) -> list:
     """The light-aware step of one image or frame as ``simtest reconstruct`` runs it:
     :func:`~simtest.reconstruct.light_fits.with_light_aware`, then the rig's fused lobes split or
     given their centroid light's normal, then a curved patch's guide lobes fitted as one
-    (:func:`~simtest.reconstruct.curved_lobes.curved_lobe_rows`); a list of SpecularityEstimate.
+    (:func:`~simtest.reconstruct.curved_lobes.curved_lobe_rows`), and the ok plane fits' sigmas raised by
+    their miss of the law of reflection at the BP (:func:`_obeys_reflection`); a list of SpecularityEstimate.
     """
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
     # a weak twin is ok to the fits and the rig's rules, and stays so where its plane fit confirms the twin (its
@@ -189,6 +211,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray)
     out = rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
     out = curved_lobe_rows(image, out, camera, rig, kwargs, gray=gray)
+    out = [_obeys_reflection(e, camera, rig) for e in out]
     weak = [k for k, e in enumerate(out) if e.ok and tuple(e.bp_px) in weak_bps]
     if weak:
         bps = np.array([e.bp_px for e in out], np.float64)

@@ -54,7 +54,7 @@ References
 
 from __future__ import annotations
 
-from simtest.reconstruct.lightaware.bisector import bisector
+from simtest.reconstruct.lightaware.bisector import bisector, reflection_offset_deg
 from simtest.reconstruct.lightaware.bound import CramerRaoBound, photometric_crb
 from simtest.reconstruct.lightaware.estimate import OK, STATUSES, LightAwareEstimate
 from simtest.reconstruct.lightaware.isocurve import isocurve_fit, refine_isophote_points
@@ -65,4 +65,4 @@ from simtest.reconstruct.lightaware.plane import photometric_fit
 
 __all__ = ["OK", "STATUSES", "LightAwareEstimate", "CramerRaoBound", "bisector", "cubic_patch_fit", "isocurve_fit",
            "patch_depth_profile", "photometric_crb", "photometric_fit", "plane_rig_intensity", "quadric_fit",
-           "refine_isophote_points", "specular_point_depth"]
+           "reflection_offset_deg", "refine_isophote_points", "specular_point_depth"]

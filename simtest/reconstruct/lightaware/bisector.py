@@ -1,4 +1,5 @@
-"""The bisector: the BP ray corrected by the rig for a given depth (closed form)."""
+"""The bisector: the BP ray corrected by the rig for a given depth (closed form), and how far a
+plane's normal is from it (:func:`reflection_offset_deg`)."""
 
 from __future__ import annotations
 
@@ -56,3 +57,42 @@ def bisector(bp_uv, camera, rig: LightRig, depth_mm) -> LightAwareEstimate:
         raise ValueError(f"depth_mm: must be finite and > 0 at the BP, got {s}")
     n = _bisector_plane(_rays(camera, bp[None])[0], _mean_light(rig), s)[0]
     return LightAwareEstimate("bisector", OK, "", n, s)
+
+
+def reflection_offset_deg(bp_uv, camera, rig: LightRig, normal, distance_mm: float) -> float:
+    """How far a plane's normal is from obeying the law of reflection at the BP: the least angle,
+    degrees, between ``normal`` and the bisector of the directions to the camera and to one light of
+    the rig, at the point where the plane meets the BP's ray.
+
+    At a highlight's specular point the surface normal bisects the directions to the camera and to
+    the light that made it, on any surface. A plane fit whose own specular point lies at the BP
+    gives 0; on a plane the lobe's peak sits a little off the specular point (the falloff and the
+    diffuse term shift it), on a curved patch a plane's normal can miss the law by degrees.
+
+    Parameters
+    ----------
+    bp_uv : array_like of shape (2,)
+        Brightest point (u, v), undistorted px.
+    camera : array_like of shape (3, 3) or CameraModel
+        Intrinsics K, or a camera model with ``pixel_to_ray``.
+    rig : LightRig
+        The lights, camera frame, mm.
+    normal : array_like of shape (3,)
+        Unit plane normal facing the camera (``n . X = -h`` on the plane), camera frame.
+    distance_mm : float
+        The plane's distance ``h`` from the camera centre, mm (> 0).
+
+    Returns
+    -------
+    float
+        Degrees in [0, 180]; NaN where the BP's ray does not meet the plane in front of the camera.
+    """
+    n = np.asarray(normal, dtype=np.float64)
+    ray = _rays(camera, np.asarray(bp_uv, dtype=np.float64).reshape(1, 2))[0]
+    facing = -float(n @ ray)
+    if not (facing > 0 and distance_mm > 0):
+        return float("nan")
+    X = (float(distance_mm) / facing) * ray
+    halves = -X / np.linalg.norm(X) + (rig.positions - X) / np.linalg.norm(rig.positions - X, axis=1, keepdims=True)
+    halves /= np.linalg.norm(halves, axis=1, keepdims=True)
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(halves, n), axis=1), halves @ n)).min())
