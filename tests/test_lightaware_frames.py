@@ -38,8 +38,9 @@ def _gamma_frame():
 def test_a_folders_frames_are_fitted_on_the_camera_files_response(tmp_path):
     # A folder's frames dropped the response (the fits ran on the gamma-encoded values: a Phong
     # lobe s^(1/2.2) fitted as n = 27 instead of 60). With it passed on, every frame's record is
-    # the single image's (light_aware_with_rig with the response, as `simtest reconstruct` runs it), bit for bit, and the lobe's
-    # roughness is the scene's (0.2 %: 8-bit quantisation of the encoded values; measured 59.89).
+    # the single image's (light_aware_with_rig with the response, as `simtest reconstruct` runs
+    # it), bit for bit, and the lobe's roughness is the scene's (0.2 %: 8-bit quantisation of the
+    # encoded values; measured 59.89).
     rgb, cam, rig, resp = _gamma_frame()
     frames = tmp_path / "frames"
     frames.mkdir()

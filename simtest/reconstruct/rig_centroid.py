@@ -165,10 +165,9 @@ def _obeys_reflection(est, camera, rig: LightRig):
     the BP (:func:`~simtest.reconstruct.lightaware.bisector.reflection_offset_deg`): a plane's error on
     a curved patch that its covariance does not see. A guide's row, its BP at its plane's specular
     point, misses by nothing."""
-    fits = est.light_aware or {}
-    new = {}
-    if rig is None:
+    if rig is None or not est.light_aware:
         return est
+    fits, new = est.light_aware, {}
     for name in ("photometric_fit", "isocurve_fit"):
         r = fits.get(name)
         if r is None or r.status != "ok" or not r.distance_mm or r.normal_sigma_deg is None:

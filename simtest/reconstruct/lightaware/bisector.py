@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from simtest.geometry.angles import angle_between_deg, unit
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate, OK
@@ -93,6 +94,5 @@ def reflection_offset_deg(bp_uv, camera, rig: LightRig, normal, distance_mm: flo
     if not (facing > 0 and distance_mm > 0):
         return float("nan")
     X = (float(distance_mm) / facing) * ray
-    halves = -X / np.linalg.norm(X) + (rig.positions - X) / np.linalg.norm(rig.positions - X, axis=1, keepdims=True)
-    halves /= np.linalg.norm(halves, axis=1, keepdims=True)
-    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(halves, n), axis=1), halves @ n)).min())
+    halves = unit(unit(-X) + unit(rig.positions - X, axis=-1), axis=-1)  # each light's bisector at X
+    return float(np.min(angle_between_deg(halves, n)))
