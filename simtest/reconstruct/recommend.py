@@ -51,9 +51,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from simtest.decisions import DEPTH_RELEASE_REL_SIGMA as DEPTH_REL_SIGMA_CEILING, ISOCURVE_ISOVALUES, SIGMA_MARGIN
+from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct.lightaware import LightAwareEstimate
+from simtest.reconstruct.lightaware.bisector import light_bisectors
 from simtest.reconstruct.registry import names
 
 __all__ = ["DEPTH_REL_SIGMA_CEILING", "ISOCURVE_ISOVALUES", "LIGHT_AWARE", "SIGMA_MARGIN", "Recommendation",
@@ -147,17 +149,11 @@ def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
         Degrees, in [0, 90].
     """
     X = float(depth_mm) * np.asarray(ray, dtype=np.float64)
-    to_cam = -X / np.linalg.norm(X)
     L, w, _, _ = _la.model._rig_arrays(rig)
-    half = []
-    for Lj in L:
-        to_light = Lj - X
-        nl = np.linalg.norm(to_light)
-        if not nl > 0:
-            return 90.0
-        c = float(np.clip(to_cam @ (to_light / nl), -1.0, 1.0))
-        half.append(0.5 * math.degrees(math.acos(c)))
-    return float(np.average(half, weights=w))
+    to_lights = L - X
+    if not np.all(np.linalg.norm(to_lights, axis=1) > 0):
+        return 90.0
+    return float(np.average(0.5 * np.atleast_1d(angle_between_deg(-X, to_lights)), weights=w))
 
 
 #: The detail :func:`with_guide_spread` adds (the spread, degrees).
@@ -189,11 +185,8 @@ def guide_spread_deg(ray, normal, depth_mm: float, rig: LightRig) -> float:
     float
         Degrees, in [0, 180].
     """
-    X = float(depth_mm) * np.asarray(ray, dtype=np.float64)
-    to_cam = -X / np.linalg.norm(X)
-    to_lights = rig.positions - X
-    halves = to_cam + to_lights / np.linalg.norm(to_lights, axis=1, keepdims=True)
-    return max(_angle_deg(normal, h) for h in halves)
+    halves = light_bisectors(float(depth_mm) * np.asarray(ray, dtype=np.float64), rig)
+    return float(np.max(angle_between_deg(halves, normal)))
 
 
 def with_guide_spread(r: LightAwareEstimate, ray, depth_mm: float, rig: LightRig) -> LightAwareEstimate:
@@ -254,11 +247,8 @@ def _bp_ray_error_beside(est, r: LightAwareEstimate) -> float:
 
 def _angle_deg(a, b) -> float:
     """Angle between two directions, degrees (0 where either is missing)."""
-    if a is None or b is None:
-        return 0.0
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    c = float(a @ b) / float(np.linalg.norm(a) * np.linalg.norm(b))
-    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
+    return 0.0 if a is None or b is None else float(angle_between_deg(a, b))
+
 
 def recommend(est) -> Recommendation:
     """The normal recommended for one highlight (module docstring, "Recommendation rule").

@@ -49,6 +49,7 @@ from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FU
                                FUSED_TOPS_WAIST_PX, MIN_AREA_PX, PAIR_DEPTH_MAX_MM, PAIR_TOL_PX, PEAK_SMOOTH_GAP_SHARE,
                                PEAK_SMOOTH_SIGMA_PX, PEAK_TOP_SHARE, SIGNIFICANCE_MIN, TOP_CORE_SHARE,
                                TOPS_PLACE_SIGMA_PX)
+from simtest.geometry.angles import angle_between_deg
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.detect_pixels import luma, noise_sigma
 from simtest.reconstruct.light_fits import NOT_FITTED, PLANE_ONLY, _offset_rig, light_aware_estimates
@@ -379,7 +380,7 @@ def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
         got = pair_plane(camera, rig.positions, moved[0], moved[1])
         if got is None:  # the moved pair off the curves: no sigma to state
             return []
-        turns.append(np.degrees(np.arccos(np.clip(got[0] @ normal, -1.0, 1.0))))
+        turns.append(angle_between_deg(got[0], normal))
         rel.append(np.abs(np.log(got[1] / depths)))
     sigma = float(np.sqrt(np.sum(np.square(turns)))) + 0.5 * misclosure
     rel_sigma = np.sqrt(np.sum(np.square(rel), axis=0))  # per top

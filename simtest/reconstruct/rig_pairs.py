@@ -22,7 +22,7 @@ from simtest._lazy import require
 from simtest.decisions import PAIR_DEPTH_MAX_MM as DEPTH_MAX_MM
 from simtest.decisions import PAIR_DEPTH_MIN_MM as DEPTH_MIN_MM
 from simtest.decisions import PAIR_TOL_PX
-from simtest.geometry.angles import unit
+from simtest.geometry.angles import angle_between_deg, unit
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct._pixels import uv_to_rc
 from simtest.reconstruct.evidence_pixels import ellipse_level
@@ -343,7 +343,7 @@ def pair_plane(camera, positions_mm, a_uv, b_uv):
         X = d * ray
         normals.append(unit(unit(-X) + unit(L[i] - X)))
         depths.append(d)
-    misclosure = float(np.degrees(np.arccos(np.clip(normals[0] @ normals[1], -1.0, 1.0))))
+    misclosure = float(angle_between_deg(normals[0], normals[1]))
     return unit(normals[0] + normals[1]), np.array(depths), (sa[0][0], sa[0][1]), misclosure
 
 

@@ -1,5 +1,6 @@
-"""The bisector: the BP ray corrected by the rig for a given depth (closed form), and how far a
-plane's normal is from it (:func:`reflection_offset_deg`)."""
+"""The bisector: the BP ray corrected by the rig for a given depth (closed form), each light's
+bisector at a point (:func:`light_bisectors`), and how far a plane's normal is from them
+(:func:`reflection_offset_deg`)."""
 
 from __future__ import annotations
 
@@ -66,9 +67,9 @@ def reflection_offset_deg(bp_uv, camera, rig: LightRig, normal, distance_mm: flo
     the rig, at the point where the plane meets the BP's ray.
 
     At a highlight's specular point the surface normal bisects the directions to the camera and to
-    the light that made it, on any surface. A plane fit whose own specular point lies at the BP
-    gives 0; on a plane the lobe's peak sits a little off the specular point (the falloff and the
-    diffuse term shift it), on a curved patch a plane's normal can miss the law by degrees.
+    the light that made it (:func:`light_bisectors`), on any surface. A plane fit whose specular point
+    lies at the BP gives 0 (on a plane the lobe's peak sits a little off it: the falloff and the diffuse
+    term shift it); on a curved patch a plane's normal can miss the law by degrees.
 
     Parameters
     ----------
@@ -93,6 +94,12 @@ def reflection_offset_deg(bp_uv, camera, rig: LightRig, normal, distance_mm: flo
     facing = -float(n @ ray)
     if not (facing > 0 and distance_mm > 0):
         return float("nan")
-    X = (float(distance_mm) / facing) * ray
-    halves = unit(unit(-X) + unit(rig.positions - X, axis=-1), axis=-1)  # each light's bisector at X
-    return float(np.min(angle_between_deg(halves, n)))
+    return float(np.min(angle_between_deg(light_bisectors((float(distance_mm) / facing) * ray, rig), n)))
+
+
+def light_bisectors(point_mm, rig: LightRig) -> np.ndarray:
+    """Each light's bisector at ``point_mm`` (3,), camera frame, mm: ``unit(unit(-X) + unit(L_j - X))``, the
+    normal that makes X light j's specular point (the law of reflection), as an (n_lights, 3) array facing
+    the camera; a NaN row for a light at X."""
+    X = np.asarray(point_mm, dtype=np.float64)
+    return unit(unit(-X) + unit(rig.positions - X, axis=-1), axis=-1)

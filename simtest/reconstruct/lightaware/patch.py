@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simtest.decisions import ONE_LIGHT_DEPTH_FACTOR
+from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
@@ -282,7 +283,7 @@ def _one_light_band(x, sigma_deg, d0, b_ray, rig_arr, Lm):
     xe = np.repeat(x[None], 3, axis=0)
     xe[1:, 2] += np.array([1.0, -1.0]) * np.log(ONE_LIGHT_DEPTH_FACTOR)
     n0, *ne = _quadric_image(d0, b_ray, xe, rig_arr, Lm)[1]
-    spread = max([0.0] + [float(np.degrees(np.arccos(np.clip(n0 @ n, -1.0, 1.0)))) for n in ne])
+    spread = max([0.0] + [float(angle_between_deg(n0, n)) for n in ne])
     s_hat = float(np.exp(x[2]))
     band = (s_hat / ONE_LIGHT_DEPTH_FACTOR, s_hat * ONE_LIGHT_DEPTH_FACTOR)
     return (None if sigma_deg is None else float(np.hypot(sigma_deg, 0.5 * spread))), band
