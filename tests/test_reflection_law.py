@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.camera import project_points
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct._pixels import Roi
@@ -29,10 +30,6 @@ RIG = LightRig((Light((-1.5, 0.0, 0.0)), Light((1.5, 0.2, 0.0))))
 def _normal(tilt_deg, az_deg):
     t, a = np.radians(tilt_deg), np.radians(az_deg)
     return np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])
-
-
-def _angle_deg(a, b):
-    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b))))
 
 
 @settings(max_examples=60, deadline=None)
@@ -54,7 +51,7 @@ def test_under_a_colocated_light_the_miss_is_the_normals_angle_to_the_ray(tilt, 
     if not -(N @ ray) > 0.05:  # the ray grazes or misses the plane
         return
     off = reflection_offset_deg((u, v), K, LightRig.colocated(), N, h)
-    assert off == pytest.approx(_angle_deg(N, -ray), abs=1e-9)
+    assert off == pytest.approx(angle_between_deg(N, -ray), abs=1e-9)
 
 
 def test_a_plane_behind_the_ray_gives_nan():

@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simtest.decisions import BP_PLACE_SIGMA_PX, SIGMA_MARGIN
+from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.camera import project_points
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct._pixels import Roi
@@ -28,11 +29,6 @@ K = np.array([[F, 0.0, 60.0], [0.0, F, 60.0], [0.0, 0.0, 1.0]])
 #: two guides either side of the lens, as the endoscope suite's colonoscope at guide offset 0.5 mm
 SYMMETRIC = LightRig((Light((-0.5, 0.0, 0.0), 400.0, "inverse_square", 1.0),
                       Light((0.5, 0.0, 0.0), 400.0, "inverse_square", 1.0)))
-
-
-def _angle_deg(a, b):
-    a, b = np.asarray(a, float), np.asarray(b, float)  # atan2: arccos loses 1e-6 deg near 0
-    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)))
 
 
 def _unit(v):
@@ -70,10 +66,10 @@ def _check_reflection(tilt, az, h, x1, x2, i1, i2, far=1.0):
 
 def test_an_asymmetric_rigs_normal_is_the_centroid_lights_bisector_at_the_depth():
     N, n = _check_reflection(25.0, 40.0, 15.0, 1.0, 4.0, 1.0, 3.0)
-    assert _angle_deg(n, N) < 1e-7  # the projection's round trip; an error of the bisector is degrees
+    assert angle_between_deg(n, N) < 1e-7  # the projection's round trip; an error of the bisector is degrees
     # at another depth another normal: off the camera centre the normal depends on the depth
     N, n = _check_reflection(25.0, 40.0, 15.0, 1.0, 4.0, 1.0, 3.0, far=2.0)
-    assert _angle_deg(n, N) > 1.0
+    assert angle_between_deg(n, N) > 1.0
 
 
 @settings(max_examples=60, deadline=None)
@@ -81,7 +77,7 @@ def test_an_asymmetric_rigs_normal_is_the_centroid_lights_bisector_at_the_depth(
        x1=st.floats(-5.0, 5.0), x2=st.floats(-5.0, 5.0), i1=st.floats(0.1, 10.0), i2=st.floats(0.1, 10.0))
 def test_the_centroid_lights_bisector_obeys_the_reflection_law(tilt, az, h, x1, x2, i1, i2):
     N, n = _check_reflection(tilt, az, h, x1, x2, i1, i2)
-    assert _angle_deg(n, N) < 1e-7
+    assert angle_between_deg(n, N) < 1e-7
 
 
 def _frame(centres, sigma, gain=1.0):
@@ -116,7 +112,7 @@ def test_one_fused_lobe_gets_the_rule():
     est = _highlight(img, (60.0, 60.0))
     r, out = _fused(img, est)
     assert r is not None and r.status == "depth_not_observable"
-    assert _angle_deg(r.normal, est.bp_ray) < 1e-9  # the BP on the rig's plane of symmetry
+    assert angle_between_deg(r.normal, est.bp_ray) < 1e-9  # the BP on the rig's plane of symmetry
     # the fusion bias is of third order and the depth leaves a symmetric rig's normal alone: the
     # sigma is the BP's own place, BP_PLACE_SIGMA_PX per axis at the principal point
     place = np.degrees(np.hypot(*[np.arctan(BP_PLACE_SIGMA_PX / F)] * 2))

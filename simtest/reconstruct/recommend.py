@@ -153,7 +153,7 @@ def bp_ray_error_deg(ray, depth_mm: float, rig: LightRig) -> float:
     to_lights = L - X
     if not np.all(np.linalg.norm(to_lights, axis=1) > 0):
         return 90.0
-    return float(np.average(0.5 * np.atleast_1d(angle_between_deg(-X, to_lights)), weights=w))
+    return float(np.average(0.5 * angle_between_deg(-X, to_lights), weights=w))
 
 
 #: The detail :func:`with_guide_spread` adds (the spread, degrees).
