@@ -69,7 +69,6 @@ NOT_DECISIONS = {
     "isophotes.RESOLVE_BATCH_ISOPHOTES": _SPEED, "isophotes.RESOLVE_BATCH_MIN": _SPEED,
     "isophotes.RESOLVE_BATCH_MIN_PX": _SPEED, "isophotes.RESOLVE_PENDING_MAX_BYTES": _SPEED,
     "isophotes.FIRST_BATCH_SIDE_PX": _SPEED,
-    "pipeline.MMAP_THRESHOLD_BYTES": _SPEED, "pipeline.TRIM_THRESHOLD_BYTES": _SPEED,
     "table.TABLE_SCHEMA_VERSION": _CODES, "table.ROW_GROUP_ROWS": _SPEED,
     "verify.WINDOWED_AREA_MAX": _SPEED, "verify._PANEL_MARGIN_PX": _SPEED,
     "evidence_pixels._HIT_JOIN_PX": _SPEED,

@@ -8,7 +8,7 @@ function that has not run yet; this one can.
 Rules (the README's "Where things live" section says why):
 
 - ``simtest.geometry`` and ``simtest.specular`` import nothing of simtest beyond each other and the
-  base modules (``_io``, ``_checks``, ``_config``, ``_lazy``, ``_records``, ``_version``, ``tolerances``,
+  base modules (``_io``, ``_checks``, ``_config``, ``_lazy``, ``_version``, ``tolerances``,
   ``constants``, ``decisions``);
 - ``simtest.simulate`` (closed-form images and ground truths) imports only geometry, specular,
   itself and the base modules: the renderer imports its truths, never the reverse;
@@ -31,7 +31,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "simtest"
 
-BASE = {"simtest._io", "simtest._checks", "simtest._config", "simtest._lazy", "simtest._records", "simtest._version",
+BASE = {"simtest._io", "simtest._checks", "simtest._config", "simtest._lazy", "simtest._version",
         "simtest.tolerances", "simtest.constants", "simtest.decisions"}
 RULES = {
     # room -> (allowed simtest prefixes or None for "anything of simtest", forbidden prefixes)

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simtest._records import fast_init
 from simtest.geometry.angles import cross3
 from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
@@ -29,7 +28,6 @@ __all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "co
            "normalised_conic", "plane_basis", "project_circle"]
 
 
-@fast_init
 @dataclass(frozen=True)
 class Ellipse:
     """Geometric parameters of an image ellipse.

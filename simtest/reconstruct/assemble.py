@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simtest._records import fast_init
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.cone_fit import FitFrame, fit_cones, to_camera, to_fit_frame
 from simtest.reconstruct.estimators import estimate_from_conics, joint_cone_axes
@@ -16,7 +15,6 @@ from simtest.reconstruct.failures import OK, Failure
 from simtest.reconstruct.recommend import recommend
 
 
-@fast_init
 @dataclass(frozen=True)
 class IsophoteEstimate:
     """The result at one isovalue.
@@ -83,7 +81,6 @@ def _of_primary(name: str, doc: str) -> property:
     return property(get, doc=doc)
 
 
-@fast_init
 @dataclass(frozen=True)
 class SpecularityEstimate:
     """Everything estimated for one highlight.
@@ -152,7 +149,6 @@ class SpecularityEstimate:
     eigenvalue_gap = _of_primary("eigenvalue_gap", "Primary eigenvalue gap, or None.")
     fit_residual_px = _of_primary("fit_residual_px", "Primary RMS Sampson residual, px, or None.")
 
-@fast_init
 @dataclass(frozen=True)
 class _Pending:
     """An isophote extracted and waiting for its cone fit (done for a whole frame at once)."""

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simtest._records import fast_init
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct.failures import Failure
 from simtest.reconstruct.fit import fit_stacked, point_sets
@@ -52,7 +51,6 @@ class FitFrame:
     on_image_plane: bool
 
 
-@fast_init
 @dataclass(frozen=True)
 class ConeFit:
     """A cone fitted on rays (truthy).

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from simtest._records import fast_init
 from simtest.constants import gaussian_radius_px
 from simtest.decisions import MULTIRES_SIDE_MIN_PX, MULTIRES_SIGMA_MIN_PX, SCOPE_BORDER_LEVEL_REL, TOPHAT_MIN_REL
 from simtest.reconstruct._pixels import Roi, rc_to_uv
@@ -37,7 +36,6 @@ from simtest.reconstruct.detect_pixels import (  # noqa: F401
 _SUPPORTED = (np.uint8, np.uint16, np.float16, np.float32, np.float64)
 
 
-@fast_init
 @dataclass(frozen=True)
 class Candidate:
     """One candidate highlight.

@@ -29,13 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simtest._records import fast_init
 from simtest.reconstruct.failures import Failure
 from simtest.reconstruct.fit import _THIRDS, _eigh2, _null_vectors
 from simtest.tolerances import TOL
 
 
-@fast_init
 @dataclass(frozen=True)
 class ConeEstimate:
     """Normals from one normalised conic C' (all (3,) unit, camera frame, facing the camera).

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from simtest._records import fast_init
 
 OK = "ok"
 
@@ -43,7 +42,6 @@ REASONS: dict[str, str] = {
 }
 
 
-@fast_init
 @dataclass(frozen=True)
 class Failure:
     """A failed step: falsy, with a cause from :data:`REASONS` and a human-readable detail.

@@ -27,7 +27,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simtest._records import fast_init
 from simtest.decisions import MIN_FIT_POINTS, MAX_AXIS_TO_SPREAD
 from simtest.geometry.conics import Ellipse, conic_kind
 from simtest.reconstruct.failures import Failure
@@ -46,7 +45,6 @@ _S_INDEX = np.array([[_MONOMIALS.index((a[0] + b[0], a[1] + b[1])) for b in _D_E
 _C1_INV = np.linalg.inv(np.array([[0.0, 0.0, 2.0], [0.0, -1.0, 0.0], [2.0, 0.0, 0.0]]))
 
 
-@fast_init
 @dataclass(frozen=True)
 class EllipseFit:
     """A successful ellipse fit (truthy).

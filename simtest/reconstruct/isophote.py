@@ -23,13 +23,11 @@ import cv2
 import numpy as np
 from skimage.measure import find_contours
 
-from simtest._records import fast_init
 from simtest.decisions import MIN_FIT_POINTS as MIN_CONTOUR_POINTS
 from simtest.reconstruct._pixels import Roi, rc_to_uv, uv_to_rc
 from simtest.reconstruct.failures import Failure
 
 
-@fast_init
 @dataclass(frozen=True)
 class Isophote:
     """An isophote contour around a BP.

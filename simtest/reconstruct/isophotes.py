@@ -11,7 +11,6 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from simtest._records import fast_init
 from simtest.decisions import AUTO_LOCAL_BACKGROUND_REL, ROI_GROWTH_FACTOR, ROI_MAX_GROWTHS
 from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate, _Draft, _Pending
@@ -113,7 +112,6 @@ def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi, full: n
     return _median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()]))
 
 
-@fast_init
 @dataclass(frozen=True)
 class _Levels:
     """Contour level of isovalue t in one ROI: ``offset + t * scale`` (image units)."""

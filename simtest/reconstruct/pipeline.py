@@ -32,11 +32,6 @@ References
 from __future__ import annotations
 
 import dataclasses
-
-import ctypes
-import functools
-import gc
-from contextlib import contextmanager
 from collections.abc import Sequence
 
 import numpy as np
@@ -52,45 +47,6 @@ from simtest.reconstruct.isophotes import RESOLVE_BATCH_ISOPHOTES, _Batches, _es
 from simtest.reconstruct.result import Reconstruction
 from simtest.reconstruct.settings import ReconSettings
 from simtest.reconstruct.verify import shared_passes
-
-
-@contextmanager
-def _gc_paused():
-    """Pause Python's cyclic garbage collector for a frame's work, then restore it as it was.
-
-    A frame builds thousands of small objects in no reference cycle; collections over every object
-    the process holds would only cost time.
-    """
-    _keep_freed_memory()
-    was_enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was_enabled:
-            gc.enable()
-
-
-#: glibc's ``mallopt`` parameters (malloc.h); blocks up to MMAP_THRESHOLD_BYTES come from the heap
-#: (a 1350 x 1080 RGB frame in float32 is 17 MiB) and up to TRIM_THRESHOLD_BYTES of free memory stays there.
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-MMAP_THRESHOLD_BYTES = 32 << 20
-TRIM_THRESHOLD_BYTES = 256 << 20
-
-
-@functools.cache
-def _keep_freed_memory() -> bool:
-    """Have glibc keep freed whole-frame arrays' memory mapped for the next frame (once per process).
-
-    True if it took the settings; elsewhere (macOS, musl) nothing is changed.
-    """
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):
-        return False
-    mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) & bool(
-        mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
 
 
 def reconstruct_roi(image, K, isovalues: float | Sequence[float] | None = None, *, bp_uv=None, roi=None,
@@ -161,7 +117,6 @@ def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, camer
     return _estimate_one(frame, bp, roi, saturated=saturated, grow=False, defer=defer)
 
 
-@_gc_paused()
 def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
                      settings: ReconSettings | None = None, **options) -> list[SpecularityEstimate]:
     """:func:`reconstruct_roi` of many known highlights, their fits batched.
@@ -201,7 +156,6 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
 Estimates = Reconstruction
 
 
-@_gc_paused()
 @shared_passes()  # the verifier's frame-wide passes, once for the BP checks and the verdict
 def reconstruct(image, K, isovalues: float | Sequence[float] | None = None, *, dist_coeffs=None, roi=None,
                 settings: ReconSettings | None = None, lights=None, response=None, **options) -> Reconstruction:
