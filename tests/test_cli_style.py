@@ -180,6 +180,23 @@ def test_a_usage_error_is_one_line_in_a_real_process():
     assert len(res.stderr.splitlines()) == 1, res.stderr
 
 
+def test_off_a_terminal_stdout_holds_only_results(tmp_path):
+    """The transient bars of reconstruct, evaluate and meshes draw on stderr and not at all off a
+    terminal: a piped `simtest reconstruct` printed a blank line before its summary, a failed
+    `simtest evaluate detection` one before its error line."""
+    from pathlib import Path
+
+    data = Path(__file__).parent / "data" / "real"
+    res = split_runner.invoke(app, ["reconstruct", str(data / "hyperkvasir_tile_r1c7_mucosa.png"), "-k",
+                                    str(data / "intrinsics_assumed_f140.json"), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 0, res.stderr
+    assert res.stdout.splitlines()[0].split()[1] == "candidate(s),", res.stdout
+    assert res.stderr == ""
+    res = split_runner.invoke(app, ["evaluate", "detection", str(tmp_path / "nope.json"), "-o", str(tmp_path / "e")])
+    assert res.exit_code == 2 and res.stdout == "" and res.stderr.startswith("error: "), (res.stdout, res.stderr)
+    assert len(res.stderr.splitlines()) == 1
+
+
 @pytest.mark.parametrize("args, words", [
     (["validate", "no_such_suite", "-j", "0"], "no_such_suite"),
     (["nightly", "--suite", "no_such_suite", "-j", "0"], "no_such_suite"),

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.progress import Progress
 
 from simtest import __version__
 from simtest.evaluate.c3vd import load_frame, scan_sequence
@@ -28,6 +27,7 @@ from simtest.geometry.camera_file import load_camera
 from simtest.geometry.response import ResponseError
 from simtest.harness.report.figures import figure_png
 from simtest._exit import BAD_INPUT, fail
+from simtest._progress import transient_progress
 from simtest._outdir import check_out_folder, write_out_folder
 from simtest.reconstruct.cli import check_workers, option_message, reconstruct_single
 from simtest.reconstruct.io import estimate_to_dict
@@ -86,7 +86,7 @@ def c3vd_command(
         rows: list[dict] = []
         n_cand = 0
         view_inputs: list[tuple[str, list, object]] = []
-        with Progress(transient=True) as progress:
+        with transient_progress() as progress:
             task = progress.add_task("reconstructing frames", total=len(frames))
             for fr in frames:
                 img, truth = load_frame(fr, camera)
@@ -163,7 +163,7 @@ def detection_command(
         fail(f"{source}: not a labelled set (.json), a scene or a suite (.toml or a bundled name)", BAD_INPUT)
     kept: list = []  # each frame's estimates, for the confidence's cross-validation
     try:
-        with Progress(transient=True) as progress:
+        with transient_progress() as progress:
             if source.endswith(".json"):
                 frames = labelled_real_frames(source)
             elif is_suite(source):

@@ -26,9 +26,10 @@ from typing import Optional
 
 import numpy as np
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
 from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
+from simtest._progress import transient_progress
 from simtest._outdir import check_out_folder, write_out_folder
 from simtest.decisions import DEFAULT_MIN_CONFIDENCE, MIN_CONFIDENCE_UNMODELLED
 from simtest.geometry.camera_file import camera_from_dict, load_camera
@@ -145,8 +146,8 @@ def reconstruct_command(
             except ResponseError as exc:
                 raise InputError(f"{intrinsics}: {exc} (frame {image})") from None
         rig = camera_file.lights
-        with Progress(TextColumn("light-aware fits"), BarColumn(), MofNCompleteColumn(),
-                      TimeElapsedColumn(), transient=True) as bar:
+        with transient_progress(TextColumn("light-aware fits"), BarColumn(), MofNCompleteColumn(),
+                                TimeElapsedColumn()) as bar:
             task = bar.add_task("highlights", total=None)
             estimates, detection_rec = reconstruct_single(
                 img, camera_file, settings, cubic_patch=cubic_patch, workers=workers or os.cpu_count() or 1,
@@ -233,8 +234,8 @@ def _reconstruct_sequence(path, intrinsics, out, target, settings, *, points, wo
     def fill(folder: Path) -> None:
         records = reconstruct_frames(source, camera, settings, workers=n_workers, include_points=points, rig=rig,
                                      cubic=cubic, encoded=output_format, response=camera_file.response)
-        with Progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
-                      TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn(), transient=True) as bar:
+        with transient_progress(TextColumn("reconstruct"), BarColumn(), MofNCompleteColumn(),
+                                TextColumn("{task.fields[fps]:.1f} frames/s"), TimeElapsedColumn()) as bar:
             task = bar.add_task("frames", total=source.n_frames, fps=0.0)
             t0 = time.perf_counter()
 

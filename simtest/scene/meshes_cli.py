@@ -11,10 +11,10 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
-from rich.progress import Progress
 from rich.table import Table
 
 from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
+from simtest._progress import transient_progress
 from simtest.scene.meshes import MeshError, build_mesh, save_mesh
 
 meshes_app = typer.Typer(name="meshes", no_args_is_help=True, add_completion=False,
@@ -80,7 +80,7 @@ def build_command(
     table = Table(title=f"meshes (seed {seed})")
     for col in ("mesh", "vertices", "faces", "MB", "k1 1/mm", "k2 1/mm", "build s"):
         table.add_column(col)
-    with Progress(console=console, transient=True) as progress:
+    with transient_progress() as progress:
         task = progress.add_task("building meshes", total=len(names))
         for name in names:
             progress.update(task, description=f"building {name}")
