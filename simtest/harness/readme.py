@@ -136,7 +136,7 @@ def section_text(reports: str | Path | None = None, repo: str | Path | None = No
         L += _rows(folder, rel)
     L += ["", f"From the {len(runs)} committed runs linked in the rows (`reports/<suite>/<run>/`). Seeds: tuning "
           "or held out (`simtest/decisions.py`).",
-          "End to end: `simtest render`, then `simtest reconstruct frame.png --intrinsics camera.json` "
+          "End to end: `simtest render`, then `simtest reconstruct frame.png --intrinsics camera.json -o OUT` "
           "(defaults), per true highlight: share with a recommended normal within 1 / 5 deg, median error "
           "if ok; per frame: false ok (no highlight or lobe near), ok on a lobe with no exact BP (median error).",
           "Given the highlight (never what "
