@@ -30,6 +30,7 @@ _GUARD = "a memory or size guard with its own error message"
 NOT_DECISIONS = {
     "isophote.ENCLOSE_FLOAT32_MARGIN_PX": _SPEED, "marching._EDGE_ENDS": _CODES,
     "marching.BATCH_MAX_PX": _SPEED,
+    "pipeline.MMAP_THRESHOLD_BYTES": _SPEED, "pipeline.TRIM_THRESHOLD_BYTES": _SPEED,
     "candidates._GATHER_SIDE": _SPEED, "candidates._FEW": _SPEED,
     "detect.MULTIRES_CANDIDATES_MAX": _SPEED,
     "fit._S3_RCOND": _SOLVER,
