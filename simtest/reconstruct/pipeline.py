@@ -51,10 +51,10 @@ from simtest.reconstruct.settings import ReconSettings
 from simtest.reconstruct.verify import shared_passes
 
 
-#: glibc's ``mallopt`` parameters (malloc.h); blocks up to MMAP_THRESHOLD_BYTES come from the heap
-#: (a 1350 x 1080 RGB frame in float32 is 17 MiB) and up to TRIM_THRESHOLD_BYTES of free memory stays there.
+#: glibc's ``mallopt`` parameters (malloc.h): blocks up to MMAP_THRESHOLD_BYTES come from the heap (a 1350 x 1080
+#: RGB frame's float64 copy, which its luma reads, is 33.4 MiB); up to TRIM_THRESHOLD_BYTES of free memory stays.
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-MMAP_THRESHOLD_BYTES = 32 << 20
+MMAP_THRESHOLD_BYTES = 64 << 20
 TRIM_THRESHOLD_BYTES = 256 << 20
 
 
