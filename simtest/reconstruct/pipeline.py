@@ -34,7 +34,9 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import functools
+import gc
 from collections.abc import Sequence
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -49,6 +51,20 @@ from simtest.reconstruct.isophotes import RESOLVE_BATCH_ISOPHOTES, _Batches, _es
 from simtest.reconstruct.result import Reconstruction
 from simtest.reconstruct.settings import ReconSettings
 from simtest.reconstruct.verify import shared_passes
+
+
+@contextmanager
+def _gc_paused():
+    """Pause Python's cyclic garbage collector for a frame's work, then restore it as it was: a frame builds
+    thousands of small objects in no reference cycle, and full collections over every object the process
+    holds would only cost time."""
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_enabled:
+            gc.enable()
 
 
 #: glibc's ``mallopt`` parameters (malloc.h): blocks up to MMAP_THRESHOLD_BYTES come from the heap (a 1350 x 1080
@@ -141,6 +157,7 @@ def _roi_draft(image, K, bp_uv, roi, dist_coeffs, settings: ReconSettings, camer
     return _estimate_one(frame, bp, roi, saturated=saturated, grow=False, defer=defer)
 
 
+@_gc_paused()
 def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
                      settings: ReconSettings | None = None, **options) -> list[SpecularityEstimate]:
     """:func:`reconstruct_roi` of many known highlights, their fits batched.
@@ -181,6 +198,7 @@ def reconstruct_rois(items, isovalues: float | Sequence[float] | None = None, *,
 Estimates = Reconstruction
 
 
+@_gc_paused()
 @shared_passes()  # the verifier's frame-wide passes, once for the BP checks and the verdict
 def reconstruct(image, K, isovalues: float | Sequence[float] | None = None, *, dist_coeffs=None, roi=None,
                 settings: ReconSettings | None = None, lights=None, response=None, **options) -> Reconstruction:
