@@ -20,6 +20,7 @@ from simtest.geometry.camera_file import load_camera
 from simtest.geometry.cameras import CameraModel, FisheyeCamera, OmnidirectionalCamera, PinholeCamera, c3vd_camera
 from simtest.geometry.lights import Light, LightRig
 from simtest.render.mitsuba_dict import intrinsics_matrix, light_position_cam
+from simtest.render.wavefront import dr_input
 from simtest.scene.spec import SceneSpec
 
 __all__ = ["COLONOSCOPE_GUIDE_OFFSET_MM", "LAPAROSCOPE_RING_RADIUS_MM", "GUIDE_PROFILE_EXPONENT", "RAY_SEED_KEY",
@@ -177,7 +178,7 @@ def sample_positions(spp: int, width: int, first_pixel: int, n_pixels: int, seed
         n = len(pixels) * int(spp)
         j = dr.arange(mi.UInt32, n)
         s = j % spp
-        q = dr.gather(mi.UInt32, mi.UInt32(np.ascontiguousarray(pixels, dtype=np.uint32)), j // spp)
+        q = dr.gather(mi.UInt32, mi.UInt32(dr_input(pixels, np.uint32)), j // spp)
         g = mi.UInt64(q) * int(spp) + mi.UInt64(s)  # the sample's index in the frame
         rng = mi.PCG32(n)
         rng.seed(dr.opaque(mi.UInt64, state) + g, g)

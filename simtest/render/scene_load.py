@@ -15,6 +15,7 @@ from simtest._lazy import require
 from simtest.geometry.camera import pixel_to_ray
 from simtest.render.mitsuba_dict import _SENSOR_TO_WORLD, cam_to_world_matrix, mesh_to_world_matrix, mitsuba_scene_dict
 from simtest.render.tissue import in_camera, tissue_params, with_neighbours
+from simtest.render.wavefront import dr_columns, dr_input
 from simtest.scene.meshes import MeshError, load_mesh
 from simtest.scene.spec import SceneSpec
 from simtest.simulate.truth import saddle_mesh
@@ -110,9 +111,9 @@ def _make_mesh(vertices, faces, normals, bsdf_dict):
     props["bsdf"] = mi.load_dict(bsdf_dict)
     mesh = mi.Mesh("surface", len(vertices), len(faces), props=props, has_vertex_normals=True)
     params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(np.ravel(np.asarray(vertices, dtype=np.float32)))
-    params["faces"] = mi.UInt32(np.ravel(np.asarray(faces, dtype=np.uint32)))
-    params["vertex_normals"] = mi.Float(np.ravel(np.asarray(normals, dtype=np.float32)))
+    params["vertex_positions"] = mi.Float(dr_input(np.ravel(vertices)))
+    params["faces"] = mi.UInt32(dr_input(np.ravel(faces), np.uint32))
+    params["vertex_normals"] = mi.Float(dr_input(np.ravel(normals)))
     params.update()
     return mesh
 
@@ -324,12 +325,9 @@ def _make_caster(scene, K: np.ndarray, pose: np.ndarray | None = None):
             d = d @ pose[:3, :3].T
         d = d.astype(np.float32)
         n_rays = len(d)
-        if identity:
-            o = mi.Point3f(np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32), np.zeros(n_rays, np.float32))
-        else:
-            c = pose[:3, 3].astype(np.float32)
-            o = mi.Point3f(np.full(n_rays, c[0]), np.full(n_rays, c[1]), np.full(n_rays, c[2]))
-        ray = mi.Ray3f(o, mi.Vector3f(d[:, 0], d[:, 1], d[:, 2]))
+        c = np.zeros(3, np.float32) if identity else pose[:3, 3].astype(np.float32)
+        o = mi.Point3f(*(dr_input(np.full(n_rays, x, np.float32)) for x in c))
+        ray = mi.Ray3f(o, mi.Vector3f(*dr_columns(d)))
         si = scene.ray_intersect(ray)
         valid, p_j, n_j, prim_j = si.is_valid(), si.p, si.sh_frame.n, si.prim_index
         dr.eval(valid, p_j, n_j, prim_j)  # one kernel for all four outputs

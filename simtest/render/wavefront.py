@@ -14,7 +14,45 @@ from simtest.geometry.lights import LightRig
 from simtest._lazy import require
 from simtest.render import tissue
 
-__all__ = ["Pending", "albedo_map", "cast", "coverage", "model_rays", "relief_normals", "shade", "shade_tissue"]
+__all__ = ["DR_ALIGN_BYTES", "Pending", "albedo_map", "cast", "coverage", "dr_columns", "dr_input", "model_rays",
+           "relief_normals", "shade", "shade_tissue"]
+
+#: Dr.Jit's LLVM backend reads a NumPy array in place and compiles each kernel for whether its inputs start on a
+#: 64-byte boundary (``align 64`` or ``align 1`` in the kernel): an array from the heap lands on either at random,
+#: so without this every render could compile (and cache) another variant of its kernels. Bytes.
+DR_ALIGN_BYTES = 64
+
+
+def dr_input(a, dtype=np.float32) -> np.ndarray:
+    """``a`` as a C-contiguous ``dtype`` array whose data start on a :data:`DR_ALIGN_BYTES` boundary (itself where
+    it is one already), to hand to Dr.Jit: the same compiled kernels whatever the allocator gave.
+
+    Parameters
+    ----------
+    a : array_like
+        Any shape.
+    dtype : numpy dtype
+        The Dr.Jit array's element type (float32 for ``Float``, uint32 for ``UInt32``).
+
+    Returns
+    -------
+    ndarray
+        Equal to ``a`` cast to ``dtype``, same shape (an empty one wherever it starts: no byte is read).
+    """
+    a = np.asarray(a, dtype=dtype)
+    if a.flags.c_contiguous and (a.size == 0 or a.ctypes.data % DR_ALIGN_BYTES == 0):  # (empty: nothing read)
+        return a
+    buf = np.empty(a.nbytes + DR_ALIGN_BYTES, np.uint8)
+    start = -buf.ctypes.data % DR_ALIGN_BYTES
+    out = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    out[...] = a
+    return out
+
+
+def dr_columns(a: np.ndarray) -> list:
+    """The columns of an (N, k) array as aligned float32 arrays (:func:`dr_input`), for ``mi.Vector3f(*...)``."""
+    return [dr_input(a[:, i]) for i in range(a.shape[1])]
+
 
 def _intersect(scene, ray):
     """``scene.ray_intersect`` of camera rays, traced as coherent rays (same hits, faster)."""
@@ -31,8 +69,7 @@ def _rays(d):
     """Rays (``mitsuba.Ray3f``) from the origin along ``d``, an (N, 3) numpy array or a Dr.Jit ``Vector3f``."""
     mi = require("mitsuba")
     if isinstance(d, np.ndarray):
-        d = np.ascontiguousarray(d, dtype=np.float32)
-        d = mi.Vector3f(d[:, 0], d[:, 1], d[:, 2])
+        d = mi.Vector3f(*dr_columns(d))
     return mi.Ray3f(mi.Point3f(0.0), d)
 
 
@@ -52,8 +89,7 @@ def model_rays(model, uv):
     if isinstance(uv, tuple):  # (u, v) Dr.Jit arrays (simtest.render.endoscope.sample_positions)
         u, v = uv
     else:
-        uv = np.ascontiguousarray(uv, dtype=np.float32)
-        u, v = mi.Float(uv[:, 0]), mi.Float(uv[:, 1])
+        u, v = (mi.Float(c) for c in dr_columns(np.asarray(uv)))
     if isinstance(model, OmnidirectionalCamera):
         A = np.asarray(model._Ainv, dtype=np.float64)
         du, dv = u - float(model.cx), v - float(model.cy)
@@ -69,8 +105,7 @@ def model_rays(model, uv):
         y = (v - float(K[1, 2])) / float(K[1, 1])
         return dr.normalize(mi.Vector3f(x, y, 1.0))
     uv = np.stack([np.array(u, dtype=np.float64), np.array(v, dtype=np.float64)], axis=-1)
-    d = np.ascontiguousarray(model.pixel_to_ray(uv), dtype=np.float32)
-    return mi.Vector3f(d[:, 0], d[:, 1], d[:, 2])
+    return mi.Vector3f(*dr_columns(model.pixel_to_ray(uv)))
 
 
 def cast(scene, d: np.ndarray, *, later: bool = False):
@@ -262,7 +297,7 @@ def _texture(tex: np.ndarray):
     hit = _TEXTURES.get(key)
     if hit is not None and hit[0] is tex:
         return hit[1]
-    t = mi.Texture2f(mi.TensorXf(np.ascontiguousarray(tex, dtype=np.float32)), filter_mode=dr.FilterMode.Linear,
+    t = mi.Texture2f(mi.TensorXf(dr_input(tex)), filter_mode=dr.FilterMode.Linear,
                      wrap_mode=dr.WrapMode.Mirror)
     if len(_TEXTURES) >= 4:
         _TEXTURES.pop(next(iter(_TEXTURES)))
@@ -335,7 +370,7 @@ def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *, defer: bo
 def _dr_rows(a: np.ndarray) -> list:
     """The three coordinates of a (..., 3) array as flat float32 Dr.Jit arrays."""
     mi = require("mitsuba")
-    return [mi.Float(np.ascontiguousarray(a[..., i].ravel(), dtype=np.float32)) for i in range(3)]
+    return [mi.Float(dr_input(a[..., i].ravel())) for i in range(3)]
 
 
 def _per_point(values, shape: tuple, defer: bool):
