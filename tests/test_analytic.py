@@ -234,6 +234,14 @@ _POSES = dict(kind=st.sampled_from(["sphere", "cylinder"]), d=st.floats(0.2, 100
 # (found by hypothesis on a local run outside CI's derandomised profile)
 @example(kind="sphere", d=0.2, r=179.0, view=30.0, az=339.4453125, eps=0.62890625, al=30.0, b=0.0)
 @example(kind="sphere", d=0.2, r=179.0, view=30.0, az=339.0, eps=0.62890625, al=30.0, b=0.0)
+# a light 11 mm off a cylinder 3 mm away: the root solve's normal turned 90 deg from its start, where the
+# tangential part of the bisector lay along the start's normal and read 0 in its basis (a point facing away
+# from the camera, residual 0.34, was accepted); and a camera on the surface to rounding
+# (found by hypothesis on local runs)
+@example(kind="cylinder", d=3.0, r=1.0, view=40.0, az=0.0, eps=11.0, al=193.0, b=0.0)
+@example(kind="cylinder", d=3.0, r=1.0, view=39.0, az=0.0, eps=10.0, al=192.0, b=0.0)
+@example(kind="cylinder", d=1.0, r=1.0, view=60.0, az=46.0, eps=1.0, al=0.0, b=0.0)
+@example(kind="cylinder", d=1.0, r=1.0, view=60.0, az=0.0, eps=1.0, al=0.0, b=0.0)
 def test_the_path_minimiser_gives_the_root_solves_bp_for_any_pose(kind, d, r, view, az, eps, al, b):
     # Both routes, for the same pose: the root solve from the co-located BP, and the light-path
     # minimiser used where that solve fails. Same outcome (BP, None, or an error for a camera
@@ -252,7 +260,9 @@ def test_the_path_minimiser_gives_the_root_solves_bp_for_any_pose(kind, d, r, vi
     if isinstance(a, str) or isinstance(bb, str):
         assert isinstance(a, str) and isinstance(bb, str), (a, bb)
         assert "camera is inside" in a and "camera is inside" in bb
-        inside = (kind == "cylinder" and (d + r) * math.cos(math.radians(view)) <= r)
+        # (on the surface to rounding counts as inside: the camera's distance from the axis is computed
+        # another way there)
+        inside = (kind == "cylinder" and (d + r) * math.cos(math.radians(view)) <= r * (1 + 8 * np.finfo(float).eps))
         assert inside, a
         return
     assert (a is None) == (bb is None)

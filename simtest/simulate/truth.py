@@ -170,8 +170,8 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
                       x0: np.ndarray, light: np.ndarray, what: str = "surface") -> np.ndarray:
     """Parameters x where the tangential part of the bisector vanishes on ``surface(x) -> (p, n)``.
 
-    Accepted on the residual, not ``sol.success`` (hybrd often stops at round-off with status 3 or 5),
-    and only if ``h . n > 0``; else :class:`HighlightTruthError`.
+    Accepted on the residual (the sine of the angle between n and h at x), not ``sol.success`` (hybrd
+    often stops at round-off with status 3 or 5), and only if ``h . n > 0``; else :class:`HighlightTruthError`.
     """
     _, n0 = surface(x0)
     f1 = np.array([0.0, 0.0, 1.0] if abs(n0[0]) > 0.9 else [1.0, 0.0, 0.0])
@@ -186,10 +186,8 @@ def _solve_stationary(surface: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
 
     sol = optimize.root(residual, x0, method="hybr", options={"xtol": 1e-14})
     x = sol.x
-    if np.all(np.isfinite(x)):
-        p, n = surface(x)
-        cos = float(np.dot(bisector(p, light), n))
-        res = float(np.max(np.abs(residual(x))))
+    if np.all(np.isfinite(x)):  # judged at x (x0's basis can miss a tangent part along n0: the normal turned)
+        res, cos = _facing(*surface(x), light)
     else:
         cos, res = math.nan, math.inf
     if not (res <= STATIONARY_RESIDUAL_TOL and cos > 0.0):
@@ -425,7 +423,7 @@ def cylinder_highlight(center: np.ndarray, axis: np.ndarray, radius: float, leng
         return None
     what = f"cylinder (axis through {np.round(c, 4).tolist()} mm, R {radius:g} mm)"
     q = c - np.dot(c, a) * a  # foot of the perpendicular from the camera centre to the axis
-    if not np.linalg.norm(q) > radius:
+    if not np.linalg.norm(q) > radius * (1.0 + 8.0 * np.finfo(float).eps):  # on it, to rounding, too
         raise HighlightTruthError(f"{what}: the camera is inside the cylinder ({np.linalg.norm(q):.4g} mm from its "
                                   "axis <= R): it sees only the inside of the tube, which the one-sided surface "
                                   "leaves unlit; no brightest point")
