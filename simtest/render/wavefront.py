@@ -39,13 +39,13 @@ def dr_input(a, dtype=np.float32) -> np.ndarray:
     ndarray
         Equal to ``a`` cast to ``dtype``, same shape (an empty one wherever it starts: no byte is read).
     """
-    a = np.asarray(a, dtype=dtype)
-    if a.flags.c_contiguous and (a.size == 0 or a.ctypes.data % DR_ALIGN_BYTES == 0):  # (empty: nothing read)
-        return a
-    buf = np.empty(a.nbytes + DR_ALIGN_BYTES, np.uint8)
-    start = -buf.ctypes.data % DR_ALIGN_BYTES
-    out = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
-    out[...] = a
+    a, dtype = np.asarray(a), np.dtype(dtype)
+    if a.dtype == dtype and a.flags.c_contiguous and (a.size == 0 or a.ctypes.data % DR_ALIGN_BYTES == 0):
+        return a  # (empty: nothing read)
+    buf = np.empty(a.size + DR_ALIGN_BYTES // dtype.itemsize, dtype)  # (its start: a multiple of the item size)
+    start = (-buf.ctypes.data % DR_ALIGN_BYTES) // dtype.itemsize
+    out = buf[start:start + a.size].reshape(a.shape)
+    out[...] = a  # cast, made contiguous and aligned in one copy
     return out
 
 
@@ -370,7 +370,7 @@ def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *, defer: bo
 def _dr_rows(a: np.ndarray) -> list:
     """The three coordinates of a (..., 3) array as flat float32 Dr.Jit arrays."""
     mi = require("mitsuba")
-    return [mi.Float(dr_input(a[..., i].ravel())) for i in range(3)]
+    return [mi.Float(dr_input(a[..., i]).ravel()) for i in range(3)]
 
 
 def _per_point(values, shape: tuple, defer: bool):
