@@ -42,3 +42,26 @@ def test_workers_started_within_get_one_thread(method):
         threads, env = pool.map(_in_worker, [0])[0]
     assert all(n == 1 for n in threads)
     assert env == SINGLE_THREAD_ENV
+
+
+def _cv_threads_in_worker(_):
+    import cv2
+
+    return cv2.getNumThreads()
+
+
+def test_opencv_runs_on_one_thread_here_and_in_forked_workers_and_is_restored():
+    # two OpenCV threads outside (an xdist worker runs one, conftest), so that a limit left behind
+    # or one a forked worker does not inherit shows
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        with one_thread_each():
+            assert cv2.getNumThreads() == 1
+            with mp.get_context("fork").Pool(1) as pool:
+                assert pool.map(_cv_threads_in_worker, [0]) == [1]
+        assert cv2.getNumThreads() == 2
+    finally:
+        cv2.setNumThreads(before)

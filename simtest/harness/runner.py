@@ -221,10 +221,7 @@ def run_case_chunk(case: Case, estimators: tuple, root_seed: int, start: int, st
 
 
 def _worker_init() -> None:
-    try:
-        cv2.setNumThreads(1)
-    except Exception:  # pragma: no cover
-        pass
+    cv2.setNumThreads(1)  # (a spawned worker: OpenCV's count does not travel as a forked one's does)
 
 
 def _assemble(case: Case, estimators: tuple, chunks: list[ChunkResult]) -> CaseResult:
