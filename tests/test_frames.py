@@ -160,7 +160,7 @@ def test_records_encoded_in_the_workers_write_the_same_file(tmp_path):
     for i, img in enumerate(_frames(4)):
         cv2.imwrite(str(frames / f"f{i:03d}.png"), img)
     plain, _, _ = write_frames(tmp_path / "plain.jsonl", reconstruct_frames(open_frames(frames), K), fmt="jsonl")
-    recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded=True))
+    recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded="jsonl"))
     assert all(isinstance(r, FrameRecord) and "specularities" not in r for r in recs)
     assert [r["frame"] for r in recs] == [0, 1, 2, 3]
     enc, _, _ = write_frames(tmp_path / "enc.jsonl", recs, fmt="jsonl")
@@ -225,10 +225,43 @@ def test_frames_through_the_shared_slots_give_frame_by_frame_records(tmp_path):
     for i, img in enumerate(images):
         cv2.imwrite(str(frames / f"f{i:03d}.png"), img[..., ::-1] if img.ndim == 3 else img)
     plain, _, _ = write_frames(tmp_path / "plain.jsonl", reconstruct_frames(open_frames(frames), K), fmt="jsonl")
-    recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded=True))
+    recs = list(reconstruct_frames(open_frames(frames), K, workers=2, encoded="jsonl"))
     assert all(isinstance(r, FrameRecord) and isinstance(r.line, bytes) for r in recs)
     assert [r["frame"] for r in recs] == list(range(11))
     enc, _, _ = write_frames(tmp_path / "enc.jsonl", recs, fmt="jsonl")
     assert enc.read_bytes() == plain.read_bytes()
     assert [r["specularities"] for r in read_frames(enc)] == _expected(
         [img for _, _, img in open_frames(frames)])
+
+
+def test_one_process_runs_one_blas_and_one_opencv_thread(tmp_path, monkeypatch):
+    # -j 1 (a folder) and a single image reconstruct in this process: their libraries' extra threads
+    # only took CPU (a video at -j 1: 15 s of CPU for 10 s of wall, 10 s with one thread, same files)
+    import simtest.reconstruct.cli as cli
+    import simtest.reconstruct.frames as frames_mod
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    seen = []
+
+    def counting(*args, **kwargs):
+        seen.append((max(d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"),
+                     cv2.getNumThreads()))
+        return reconstruct(*args, **kwargs)
+
+    monkeypatch.setattr(frames_mod, "reconstruct", counting)
+    monkeypatch.setattr(cli, "reconstruct", counting)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, img in enumerate(_frames(2)):
+        cv2.imwrite(str(folder / f"f{i}.png"), img)
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)  # (an xdist worker runs one: conftest)
+    try:
+        with threadpool_limits(limits=2):
+            for source in (folder, folder / "f0.png"):
+                res = CliRunner().invoke(app, ["reconstruct", str(source), "-k", str(_write_k(tmp_path)), "-o",
+                                               str(tmp_path / f"out_{source.name}"), "-j", "1"])
+                assert res.exit_code == 0, res.output
+    finally:
+        cv2.setNumThreads(before)
+    assert seen and all(s == (1, 1) for s in seen), seen

@@ -30,6 +30,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsed
 
 from simtest._exit import BAD_INPUT, CANNOT_WRITE, fail, writable_dir
 from simtest._progress import transient_progress
+from simtest._threads import one_thread_each
 from simtest._outdir import check_out_folder, write_out_folder
 from simtest.decisions import DEFAULT_MIN_CONFIDENCE, MIN_CONFIDENCE_UNMODELLED
 from simtest.geometry.camera_file import camera_from_dict, load_camera
@@ -188,8 +189,9 @@ def reconstruct_single(img, camera_file, settings: ReconSettings | None = None, 
         :meth:`~simtest.reconstruct.result.Reconstruction.detection_record`.
     """
     settings = ReconSettings.for_frames() if settings is None else settings
-    estimates = reconstruct(img, camera_file.model, settings=settings, lights=camera_file.lights,
-                            response=camera_file.response)
+    with one_thread_each():  # (as a folder's frames: more BLAS threads take more CPU, not less time)
+        estimates = reconstruct(img, camera_file.model, settings=settings, lights=camera_file.lights,
+                                response=camera_file.response)
     # the scope's light rig from the camera file ("lights"; none: one light at the camera)
     kw = dict(cubic=None if cubic_patch else False, response=camera_file.response)
     return (light_aware_with_rig(img, estimates, camera_file.model, camera_file.lights, workers=workers,

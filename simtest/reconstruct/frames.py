@@ -199,7 +199,7 @@ class FrameRecord(dict):
     batch = None
 
 
-#: The encodings of :func:`reconstruct_frames` (``True``: ``"jsonl"``, an older spelling).
+#: The encodings of :func:`reconstruct_frames`.
 ENCODINGS = ("jsonl", "parquet")
 
 
@@ -277,7 +277,7 @@ def _frame_record(args) -> dict:
 
 def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = None, *, dist_coeffs=None,
                        workers: int = 1, include_points: bool = False, rig=None, cubic: bool | None = False,
-                       encoded: bool | str = False, response=None) -> Iterator[dict]:
+                       encoded: str | None = None, response=None) -> Iterator[dict]:
     """Reconstruct every frame of ``source``; yield one record per frame, in frame order.
 
     Parameters
@@ -300,9 +300,8 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
         camera centre: none are run.
     cubic : bool or None
         Passed to :func:`~simtest.reconstruct.light_fits.with_light_aware` (default False).
-    encoded : bool or str
-        ``"jsonl"`` (or True) or ``"parquet"``: yield :class:`FrameRecord` s encoded in the workers.
-        False: plain records.
+    encoded : {"jsonl", "parquet"}, optional
+        Yield :class:`FrameRecord` s encoded so in the workers; None: plain records.
     response : SensorResponse, optional
         The sensor's response, passed to :func:`~simtest.reconstruct.light_fits.with_light_aware`.
         None: linear.
@@ -320,15 +319,14 @@ def reconstruct_frames(source: FrameSource, K, settings: ReconSettings | None = 
     settings = ReconSettings.for_frames() if settings is None else settings
     jobs = ((i, name, img, K, settings, dist_coeffs, include_points, rig, cubic, response)
             for i, name, img in same_size_frames(source, K))
-    encoded = "jsonl" if encoded is True else encoded
     if encoded and encoded not in ENCODINGS:
         raise ValueError(f"encoded: {encoded!r} is not one of {', '.join(ENCODINGS)}")
     one = partial(_encoded_record, encoding=encoded) if encoded else _frame_record
-    if workers <= 1:
-        yield from map(one, jobs)
+    if workers <= 1:  # (one BLAS and OpenCV thread: more took twice the CPU for the same wall time)
+        with one_thread_each():
+            yield from map(one, jobs)
         return
-    jobs = iter(jobs)
-    first = next(jobs, None)
+    first = next(jobs, None)  # (jobs: a generator)
     if first is None:
         return
     # a bounded window of frames in flight, decoded here while the workers reconstruct earlier ones
