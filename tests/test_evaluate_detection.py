@@ -253,6 +253,14 @@ def test_an_image_as_the_source_is_refused_in_one_line_naming_what_is_taken(tmp_
     assert not (tmp_path / "out").exists()
 
 
+def test_a_missing_labelled_set_is_one_plain_line(tmp_path):
+    # it read "not a labelled set (FileNotFoundError: [Errno 2] No such file or directory: '...')"
+    missing = tmp_path / "labels.json"
+    res = CliRunner().invoke(app, ["evaluate", "detection", str(missing), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 2 and res.output.strip().splitlines() == [
+        f"error: {missing}: not a labelled set (No such file or directory)"]
+
+
 def test_the_cross_validation_takes_the_estimates_the_scoring_made():
     """`evaluate detection` on a labelled set reconstructs each frame once for its scores and hands
     those estimates to the confidence's cross-validation (evaluate_frames' keep): the same report

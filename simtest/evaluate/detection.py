@@ -343,7 +343,7 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
         tiles = doc["tiles"]
         side = int(head.get("tile_px", 280))
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise ValueError(f"{path}: not a labelled set ({type(exc).__name__}: {exc})") from None
+        raise ValueError(f"{path}: not a labelled set ({getattr(exc, 'strerror', None) or f'{type(exc).__name__}: {exc}'})") from None
     image_path = path.parent / src
     if not image_path.is_file():
         raise ValueError(f"{path}: key 'image': {image_path} not found")
