@@ -166,15 +166,13 @@ def _noise_rows(image: np.ndarray) -> np.ndarray:
 
 def _noise_sigma_of_rows(rows: np.ndarray) -> float:
     """:func:`noise_sigma` of the rows it reads (h, W)."""
-    if rows.dtype == np.uint8 and rows.shape[1] >= 3 and rows.shape[0] >= 1:
-        return _sigma_of_mad(_mad_of_uint8_rows(rows))
     g = rows.astype(np.float32)  # (the MAD in float32, as its float32 data)
     return noise_sigma_of_differences((g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel())
 
 
 def noise_sigma_of_differences(d: np.ndarray) -> float:
     """:func:`noise_sigma` from any selection of its differences ``d`` (1-D)."""
-    return _sigma_of_mad(_median(np.abs(d - _median(d))))
+    return _sigma_of_mad(np.median(np.abs(d - np.median(d))))
 
 
 def _sigma_of_mad(mad) -> float:
@@ -195,7 +193,7 @@ def noise_level_table(gray: np.ndarray, full_scale: float, fallback: float) -> n
     out, ends = np.full(NOISE_LEVEL_BINS, np.nan), np.cumsum(np.bincount(k, minlength=NOISE_LEVEL_BINS))
     for b, db in enumerate(np.split(d[np.argsort(k, kind="stable")], ends[:-1])):  # one radix sort: bins in order
         if len(db) >= NOISE_LEVEL_MIN_SAMPLES:
-            out[b] = 1.4826 * float(_median(np.abs(db - _median(db)))) / np.sqrt(1.5)
+            out[b] = 1.4826 * float(np.median(np.abs(db - np.median(db)))) / np.sqrt(1.5)
     full = np.flatnonzero(out > 0)  # 0: most of the bin has no noise (clipped, drawn, rendered)
     if not len(full) or not fallback > 0:  # a frame whose noise reads 0 (JPEG's flat blocks): none
         return np.full(NOISE_LEVEL_BINS, float(fallback))
@@ -207,44 +205,6 @@ def _level_bin(levels, full_scale: float) -> np.ndarray:
     """The bin of :func:`noise_level_table` that each intensity falls in (int64; NaN in the first)."""
     x = np.multiply(levels, NOISE_LEVEL_BINS / full_scale, dtype=np.float64)
     return np.fmin(np.fmax(x, 0.0, out=x), NOISE_LEVEL_BINS - 1, out=x).astype(np.int64)
-
-
-def _median(a: np.ndarray):
-    """``np.median`` of a 1-D float array (the same value), by one partition."""
-    n = a.size
-    if n == 0 or np.isnan(a).any():
-        return np.median(a)
-    k = n // 2
-    # most values tie at 0 (flat rows of JPEG or clean frames): counted, not selected
-    below = np.count_nonzero(a < 0)
-    if below <= k - 1 + n % 2 and k < below + np.count_nonzero(a == 0):
-        return a.dtype.type(0)
-    p = np.partition(a, k)
-    if n % 2:
-        return p[k]
-    return (p[:k].max() + p[k]) / a.dtype.type(2)
-
-
-def _median_of_counts(hist: np.ndarray, n: int) -> float:
-    """The median (as ``np.median``) of ``n`` integers given by their histogram over 0, 1, ..."""
-    cum = np.cumsum(hist)
-    hi = int(np.searchsorted(cum, n // 2 + 1))
-    if n % 2:
-        return float(hi)
-    lo = int(np.searchsorted(cum, n // 2))
-    return (lo + hi) / 2.0
-
-
-def _mad_of_uint8_rows(rows: np.ndarray) -> np.float32:
-    """The MAD of :func:`_noise_sigma_of_rows` for uint8 rows, by histograms of the integer ``2 d``
-    (the same float32 value as numpy's).
-    """
-    x = rows.astype(np.int32)
-    v = (2 * x[:, 1:-1] - x[:, :-2] - x[:, 2:]).ravel()  # 2 d
-    n = v.size
-    med2 = _median_of_counts(np.bincount(v + 510, minlength=1021), n) - 510  # 2 median(d)
-    dev4 = np.abs(2 * v - int(round(2 * med2)))  # 4 |d - median(d)|
-    return np.float32(_median_of_counts(np.bincount(dev4), n) / 4.0)
 
 
 def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:

@@ -68,17 +68,7 @@ def _find_bp(img: np.ndarray, roi: Roi, saturation_level) -> tuple[np.ndarray, b
 def _border_median(vals: np.ndarray) -> float:
     """Median of the pixels on the border of an ROI: the local diffuse level of ``normalise="local"``
     (float64; NaN if any is NaN; a single row or column counts twice)."""
-    return _median(np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]], dtype=np.float64))
-
-
-def _median(ring: np.ndarray) -> float:
-    """``np.median`` of a float64 vector (NaN if any is NaN) by one ``np.partition``."""
-    n = len(ring)
-    k = n // 2
-    part = np.partition(ring, (k - 1, k, n - 1) if n % 2 == 0 else (k, n - 1))
-    if part[-1] != part[-1]:  # NaN sorts last
-        return float("nan")
-    return float(part[k]) if n % 2 else float((part[k - 1] + part[k]) / 2)
+    return float(np.median(np.concatenate([vals[0], vals[-1], vals[1:-1, 0], vals[1:-1, -1]], dtype=np.float64)))
 
 
 @functools.lru_cache(maxsize=256)
@@ -109,7 +99,7 @@ def _smoothed_border_median(img: np.ndarray, kern: np.ndarray, roi: Roi, full: n
     np.matmul(lum(np.s_[r0:r1, c1 - len(kc):c1])[:, ::-1], kc, out=cols[1])
     smooth = lambda a: cv2.sepFilter2D(a, cv2.CV_64F, kern, _ONE_TAP, borderType=cv2.BORDER_REFLECT)
     rows, cols = smooth(sq).reshape(2, 2, w) if h == w else (smooth(rows), smooth(cols))
-    return _median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()]))
+    return float(np.median(np.concatenate([rows.ravel(), cols[:, 1:-1].ravel()])))
 
 
 @dataclass(frozen=True)
