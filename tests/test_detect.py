@@ -320,7 +320,7 @@ def test_candidate_cap_counts_what_it_leaves_out():
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1))
 def test_ellipticity_is_its_formula_with_numpys_covariance(seed):
-    # the step-by-step covariance of ellipticity() against np.cov, to the bit
+    # ellipticity() is its formula with np.cov's second moments, to the bit
     rng = np.random.default_rng(seed)
     mask = rng.random((int(rng.integers(2, 40)), int(rng.integers(2, 40)))) < rng.uniform(0.1, 0.9)
     rr, cc = np.nonzero(mask)

@@ -258,11 +258,7 @@ def ellipticity(mask: np.ndarray) -> float:
     n = rr.size
     if n < 3:
         return float("nan")
-    # np.cov(np.stack([rr, cc]).astype(float), bias=True) step by step: the same bits
-    x = np.array([rr, cc], dtype=np.float64)
-    x -= x.mean(axis=1)[:, None]
-    cov = np.dot(x, x.T.conj())
-    cov *= np.true_divide(1, n)
+    cov = np.cov(np.array([rr, cc], dtype=np.float64), bias=True)
     # a pixel is a unit square: add its own second moment (1/12 per axis) to the centres' spread
     det = (cov[0, 0] + 1 / 12) * (cov[1, 1] + 1 / 12) - cov[0, 1] ** 2
     return float(n / (4 * np.pi * np.sqrt(det))) if det > 0 else float("nan")
