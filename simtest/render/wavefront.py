@@ -370,7 +370,7 @@ def albedo_map(p: np.ndarray, texture, n: np.ndarray | None = None, *, defer: bo
 def _dr_rows(a: np.ndarray) -> list:
     """The three coordinates of a (..., 3) array as flat float32 Dr.Jit arrays."""
     mi = require("mitsuba")
-    return [mi.Float(dr_input(a[..., i]).ravel()) for i in range(3)]
+    return [mi.Float(c) for c in dr_columns(np.reshape(a, (-1, 3)))]
 
 
 def _per_point(values, shape: tuple, defer: bool):
