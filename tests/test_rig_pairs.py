@@ -232,7 +232,7 @@ def _srgb(s):
 
 def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shininess=800.0,
                  tissue=(0.75, 0.32, 0.25), noise=0.01, median=0.45, texture=None, gamma=None, after_curve=False,
-                 azimuth_deg=90.0, profile=0.0, phong=False, rows=None):
+                 azimuth_deg=90.0, profile=0.0, phong=False, rows=None, ggx=None):
     """An 8-bit sRGB frame of a plane under the two guides: Blinn-Phong lobes (exponent
     ``shininess``) and Lambertian shading in the ``tissue`` colour, each guide's light falling
     off with the inverse square, exposed so that the shading's median is ``median`` of full scale
@@ -244,7 +244,7 @@ def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shini
     ``azimuth_deg``: the tilt's direction (90: across the guides' baseline); ``profile``: each guide's
     emission falls off as the cosine off its axis (the camera's) to this power; ``phong``: Phong's
     lobe (R . V, the paper's model) in place of Blinn's; ``rows``: the frame's height (``size``: its
-    width)."""
+    width); ``ggx``: GGX's normal distribution of that roughness alpha, over its peak, in place of Blinn's."""
     n = _normal(tilt_deg, azimuth_deg)
     h = depth_mm * np.cos(np.radians(tilt_deg))  # the plane n . X = -h, depth_mm on the axis
     rows = size if rows is None else rows
@@ -263,7 +263,11 @@ def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shini
         H /= np.linalg.norm(H, axis=-1, keepdims=True)
         R = 2.0 * (Ld @ n)[..., None] * n - Ld  # the guide's ray mirrored about the normal
         diffuse += E
-        lobes += E * np.maximum(np.einsum("...i,...i", R, V) if phong else H @ n, 0.0) ** shininess
+        if ggx is not None:  # GGX's D over its peak: broad tails of a rough film
+            nh2, a2 = np.maximum(H @ n, 0.0) ** 2, ggx * ggx
+            lobes += E * (a2 / (nh2 * (a2 - 1.0) + 1.0)) ** 2
+        else:
+            lobes += E * np.maximum(np.einsum("...i,...i", R, V) if phong else H @ n, 0.0) ** shininess
         Lm = L - 2 * (n @ L + h) * n  # the guide's mirror image: its specular point on the plane
         Xs = Lm * (h / -(n @ Lm))
         truth.append((K @ Xs)[:2] / Xs[2])

@@ -1,28 +1,25 @@
 """A rig's lobes on a curved patch: one patch fit gives each guide's row.
 
-The rig's curves (:mod:`simtest.reconstruct.rig_pairs`) place the other guides' highlights as a plane
-would. A convex patch draws the guides' specular points together (a mirror ball's images of two lamps
-lie closer than a flat mirror's), a concave one pushes them apart: on the bundled liver seen from 64 mm,
-two guides 19 mm either side of the lens light points 14 px apart where every plane through the BP puts
-the other 40 px or more away. The verifier then counts the other guide's lobe as another peak
-(``cluster``, ``merged``), or, closer still, the two lobes fuse into one region whose isophote is no
-ellipse (``bad_fit``, ``not_an_ellipse``), and no light-aware fit runs.
+The rig's curves (:mod:`simtest.reconstruct.rig_pairs`) place the other guides' highlights as a plane would. A convex
+patch draws the guides' specular points together (a mirror ball's images of two lamps lie closer than a flat mirror's),
+a concave one pushes them apart: on the bundled liver seen from 64 mm, two guides 19 mm either side of the lens light
+points 14 px apart where every plane through the BP puts the other 40 px or more away. The verifier then counts the
+other guide's lobe as another peak (``cluster``, ``merged``), or, closer still, the two lobes fuse into one region whose
+isophote is no ellipse (``bad_fit``, ``not_an_ellipse``), and no light-aware fit runs.
 
-Rule. Under separate lights, a group of candidates still rejected for such a reason after the other
-steps (:data:`CURVED_LOBE_STATUSES`), each pair of them one's BP in the other's ROI, at most one per place of the
-rig's lights, no other candidate's BP in the ROI the fit reads (whatever its status: a smooth patch shows one
-lobe per place of the lights, a glint field many peaks) and, where several, their isophotes alike in extent in
-every direction (:data:`~simtest.decisions.LOBE_TWIN_EXTENT_RATIO`: the lobes of one patch image its one
-shape), is fitted as one curved patch: the quadric, then the
-third-order patch (:mod:`simtest.reconstruct.lightaware`), on the ROI that holds every member's lobe.
-The first fit that is ``ok`` with each guide's specular point (its light normals and depths,
-:func:`~simtest.reconstruct.rig_pairs.patch_specular_points`) and puts the points on the group confirms
-it: each member's BP within :data:`~simtest.decisions.PAIR_TOL_PX` plus its wander of a guide's point,
-no two on one point; a lone candidate (fused lobes) with two or more guides' points in its bright region,
-``PAIR_TOL_PX`` apart, one on its BP. Each such point becomes that guide's row (status ``ok``, BP at
-the point, the fit's normals); a group the fit does not confirm keeps its rejections. Texture or a
-glint field seldom puts a second lobe where one patch's shading explains both; the fit decides, not
-the spacing.
+Rule. Under separate lights, a group of candidates still rejected for such a reason after the other steps
+(:data:`CURVED_LOBE_STATUSES`), each pair of them one's BP in the other's ROI, at most one per place of the rig's
+lights, no other candidate's BP in the ROI the fit reads (whatever its status: a smooth patch shows one lobe per place
+of the lights, a glint field many peaks) and, where several, their isophotes alike in extent in every direction
+(:data:`~simtest.decisions.LOBE_TWIN_EXTENT_RATIO`: the lobes of one patch image its one shape), is fitted as one curved
+patch: the quadric, then the third-order patch (:mod:`simtest.reconstruct.lightaware`), on the ROI that holds every
+member's lobe. The first fit that is ``ok`` with each guide's specular point (its light normals and depths,
+:func:`~simtest.reconstruct.rig_pairs.patch_specular_points`) and puts the points on the group confirms it: each
+member's BP within :data:`~simtest.decisions.PAIR_TOL_PX` plus its wander of a guide's point, no two on one point; a
+lone candidate (fused lobes) with two or more guides' points in its bright region, ``PAIR_TOL_PX`` apart, one on its BP.
+Each such point becomes that guide's row (status ``ok``, BP at the point, the fit's normals); a group the fit does not
+confirm keeps its rejections. Texture or a glint field seldom puts a second lobe where one patch's shading explains
+both; the fit decides, not the spacing.
 """
 
 from __future__ import annotations

@@ -189,8 +189,10 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     """
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
     # a weak twin is ok to the fits and the rig's rules, and stays so where its plane fit confirms the twin (its
-    # row found again by its BP, which the steps below keep; a split gives its rows their own BPs and checks)
-    weak_bps = {tuple(e.bp_px) for e in estimates if e.status == WEAK_TWIN}
+    # row found again by its BP, which the steps below keep; a split, only where the luma dips between its
+    # points, gives its rows their own BPs)
+    weak_rows = {i for i, e in enumerate(estimates) if e.status == WEAK_TWIN}
+    weak_bps = {tuple(estimates[i].bp_px) for i in weak_rows}
     estimates = [dataclasses.replace(e, status="ok") if e.status == WEAK_TWIN else e for e in estimates]
     # the frame's luma once for the three steps, where a highlight or a split may read it
     gray = luma(np.asarray(image)) if _offset_rig(rig) and any(map(splittable, estimates)) else None
@@ -207,7 +209,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
                                       among={i for i, w in zip(maybe, white) if w or estimates[i].saturated})
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
                               plane_only=split, **kwargs)
-    split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray)
+    split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray, weak=weak_rows)
     out = rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
     out = curved_lobe_rows(image, out, camera, rig, kwargs, gray=gray)
     out = [_obeys_reflection(e, camera, rig) for e in out]

@@ -1,35 +1,34 @@
 """Highlights of several light guides fused into one: one row per guide, from their joint fit.
 
-Where the patch is near and shiny, the guides' lobes (:mod:`simtest.reconstruct.rig_pairs`)
-touch and the detector sees one bright region (``ok`` at neither specular point, ``merged``,
-``bad_fit``, ``not_elliptical``, ``contour_cut``, ``touches_border``; ``not_specular`` where the lobes are pale
-or weak, as for a rig twin). The light-aware photometric fit models every lobe on one plane: it needs no
-ellipse, nor the part of the region the frame cuts.
+Where the patch is near and shiny, the guides' lobes (:mod:`simtest.reconstruct.rig_pairs`) touch and the detector sees
+one bright region (``ok`` at neither specular point, ``merged``, ``bad_fit``, ``not_elliptical``, ``contour_cut``,
+``touches_border``; ``not_specular`` where the lobes are pale or weak, as for a rig twin). The light-aware photometric
+fit models every lobe on one plane: it needs no ellipse, nor the part of the region the frame cuts.
 
 Rule. A candidate's plane fit (``n . X = -h``) predicts each guide's specular point ``X_s = L' h / (-n . L')`` with
 ``L' = L - 2 (n . L + h) n`` (without a distance, the h that centres them on the clipped tops, :func:`_on_the_tops`,
-where the tops narrow between them, :func:`_waisted`: one lobe's top holds any two points at some h).
-When two or more guides' points lie in the candidate's bright region (above :data:`FUSED_LOBE_LEVEL` of the BP's
-height, holding the BP), at least :data:`~simtest.decisions.PAIR_TOL_PX` apart and, if clipped, one within
-``PAIR_TOL_PX`` of its top (a weaker lobe may not clip), it gives one row per guide whose point is no light-aware
-ok candidate's BP (that highlight has its own row): BP at its specular point, status ``ok``, the joint fit's
-normal (a depth-less one's sigma without the guides' spread: the points apart tell which guide lit which). A
-rejected candidate is fitted for this only where the rig's curve runs in its region. Under two guides a ``merged``
-or ``cluster`` one whose tops do not stretch along that curve gives rows only where the luma dips
-between its fit's two points (:func:`_dips_between`; one elongated blob peaks between them). A ``not_specular``
-one is fitted under two guides only, where it is white (the colour check's white share; its paleness is waived,
-as for a rig twin: two tops at the rig's baseline are what texture does not repeat), its peak is significant
-and its tops stretch along the curve, and it gives rows only where the luma dips between its fit's points. A lobe
-the frame's edge cuts (its region, ``touches_border``, or its isophote, ``contour_cut``) gives its guide's row where
-its fit, ok with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top).
+where the tops narrow between them, :func:`_waisted`: one lobe's top holds any two points at some h). When two or more
+guides' points lie in the candidate's bright region (above :data:`FUSED_LOBE_LEVEL` of the BP's height, holding the BP),
+at least :data:`~simtest.decisions.PAIR_TOL_PX` apart and, if clipped, one within ``PAIR_TOL_PX`` of its top (a weaker
+lobe may not clip), it gives one row per guide whose point is no light-aware ok candidate's BP (that highlight has its
+own row): BP at its specular point, status ``ok``, the joint fit's normal (a depth-less one's sigma without the guides'
+spread: the points apart tell which guide lit which). A rejected candidate is fitted for this only where the rig's curve
+runs in its region. Under two guides a ``merged`` or ``cluster`` one whose tops do not stretch along that curve gives
+rows only where the luma dips between its fit's two points (:func:`_dips_between`; one elongated blob peaks between
+them). A ``not_specular`` one is fitted under two guides only, where it is white (the colour check's white share; its
+paleness is waived, as for a rig twin: two tops at the rig's baseline are what texture does not repeat), its peak is
+significant and its tops stretch along the curve, and it gives rows only where the luma dips between its fit's points,
+as does a weak peak the height check passed for its rig twin (a twin elsewhere and both lobes here cannot both hold). A
+lobe the frame's edge cuts (its region, ``touches_border``, or its isophote, ``contour_cut``) gives its guide's row
+where its fit, ok with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top).
 
-Partner. An ok row whose plane fit (ok, with its distance) puts its own guide's point on its BP and another guide's
-on a rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander) makes that candidate the other guide's
-row where the candidate's own plane fit puts both points back: a weak lobe whose isophote the other's tail deforms.
-A candidate with no closed isophote to measure its BP's wander (a lobe the frame cuts; a pale one, ``not_specular``;
-a weak one whose core is ``too_small``) is the other guide's where its bright region holds that point, its fit's too.
-An ok row whose recommended quadric (one curved patch fitted to every guide's lobe) puts its own guide's specular
-point on its BP makes the rejected candidate whose BP lies at another guide's point that guide's row, from the same fit.
+Partner. An ok row whose plane fit (ok, with its distance) puts its own guide's point on its BP and another guide's on a
+rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander) makes that candidate the other guide's row where
+the candidate's own plane fit puts both points back: a weak lobe whose isophote the other's tail deforms. A candidate
+with no closed isophote to measure its BP's wander (a lobe the frame cuts; a pale one, ``not_specular``; a weak one
+whose core is ``too_small``) is the other guide's where its bright region holds that point, its fit's too. An ok row
+whose recommended quadric (one curved patch fitted to every guide's lobe) puts its own guide's specular point on its BP
+makes the rejected candidate whose BP lies at another guide's point that guide's row, from the same fit.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each of at least
 :data:`~simtest.decisions.MIN_AREA_PX`) where the rig pairs them gives one row per top at its centroid, with the plane
@@ -264,8 +263,8 @@ def _dip_needed(gray: np.ndarray, est, camera, rig) -> bool:
                                             and not _along_the_rig(gray, est, camera, rig, True))
 
 
-def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | None:
-    """The rows of one fitted candidate's fused lobes (module docstring), or None."""
+def _rows(est, camera, rig, gray, region, pair, others: np.ndarray, weak: bool = False) -> list | None:
+    """The rows of one fitted candidate's fused lobes (module docstring), or None; ``weak``: a weak twin's."""
     fit = (est.light_aware or {}).get("photometric_fit")
     if fit is None or not fit.has_normal or region is None:
         return None
@@ -281,7 +280,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray) -> list | No
             return None
     else:
         return None
-    if _dip_needed(gray, est, camera, rig) and not (len(pts) == 2 and _dips_between(gray, region, pts)):
+    if (weak or _dip_needed(gray, est, camera, rig)) and not (len(pts) == 2 and _dips_between(gray, region, pts)):
         return None  # such a region is two guides' lobes only where its luma dips between their points
     k = np.flatnonzero(_inside(region, pts))
     cut = est.status in ("touches_border", "contour_cut") and _plane(fit)
@@ -441,7 +440,7 @@ def _one_split_per_pair(parts: list, splits: list) -> None:
                 parts[k] = [est]
 
 
-def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None) -> list:
+def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None, weak=()) -> list:
     """The estimates with each candidate of fused guide lobes replaced by one row per guide.
 
     Parameters
@@ -458,6 +457,8 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
         The rejected candidates fitted with the plane only (:func:`fused_lobe_candidates`).
     gray : ndarray of shape (H, W), optional
         The frame's luma when at hand.
+    weak : collection of int
+        The candidates the height check passed for their rig twin alone (module docstring, "Rule").
 
     Returns
     -------
@@ -482,7 +483,7 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None)
             region = _bright_region(gray, est)
             # the clipped tops' pair, once for both (the rig's pair of one guide is none)
             pair = _tops_pair(gray, region, camera, rig) if est.saturated and region is not None else None
-            rows = _rows(est, camera, rig, gray, region, pair, others)
+            rows = _rows(est, camera, rig, gray, region, pair, others, i in weak)
             rows = _pair_rows(est, camera, rig, region, pair, others, rows) or rows
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
         if rows is not None:
