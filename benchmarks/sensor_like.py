@@ -2,8 +2,10 @@
 
 Flat mucosa under two light guides, as a sensor records it, made here by a generator that shares no code
 with simtest's renderer nor with the tests' generators (whose frames are tuning data, ``simtest.decisions``):
-each frame draws its camera, rig, plane, lobe, tissue colour, exposure and noise from
-:data:`RANGES`, is written with its camera file (pinhole K, the two guides, the sRGB response) and is
+each frame draws its camera, rig (two guides, not symmetric about the lens), plane, lobe (Phong,
+Blinn-Phong, GGX or Cook-Torrance), tissue colour, exposure, noise and file format (PNG, or JPEG for a
+third of the frames) from :data:`RANGES`, is written with its camera file (pinhole K, the two guides, the
+sRGB response) and is
 reconstructed by ``simtest reconstruct FRAME -k camera.json`` in a fresh process, as a user runs it. Each
 true highlight (one per guide: the guide's mirror image in the plane, projected) is the nearest estimate's
 within the harness's ``MATCH_PX`` and half the distance to the other guide's. The frames are held out:
@@ -39,15 +41,17 @@ __all__ = ["bench_sensor_like", "sensor_frame", "score"]
 ROOT_SEED = 20261201
 
 #: What a frame draws, uniformly (``log``: uniformly in the logarithm). Lengths in mm, angles in deg.
-#: Guides 3 to 5 mm either side of the lens (colonoscopes' light guides) on a baseline at any angle;
-#: mucosa 8 to 50 mm away, tilted up to 60 deg; lobes from rough to wet (Phong and Blinn-Phong
-#: exponents 50 to 2000, GGX alpha 0.04 to 0.3); specular gain 0.5 to 8 times the diffuse's (weak
-#: unclipped lobes to clipped plateaus); exposure putting the diffuse median at 0.2 to 0.6 of full
-#: scale (linear); Gaussian noise 0.5 to 2 % of full scale before the curve.
+#: Guides 3 to 5 mm from the lens (colonoscopes' light guides), each at its own distance, the second
+#: opposite the first to within ``guide_skew_rad`` and ``guide_z_mm`` off the tip's plane; mucosa 8 to
+#: 50 mm away, tilted up to 60 deg; lobes from rough to wet (Phong and Blinn-Phong exponents 50 to 2000,
+#: GGX and Beckmann alpha 0.04 to 0.3); specular gain 0.5 to 8 times the diffuse's (weak unclipped
+#: lobes to clipped plateaus); exposure putting the diffuse median at 0.2 to 0.6 of full scale (linear);
+#: Gaussian noise 0.5 to 2 % of full scale before the curve; JPEG quality 70 to 95 where JPEG.
 RANGES = {
     "focal_px": (250.0, 450.0), "guide_mm": (3.0, 5.0), "depth_mm": (8.0, 50.0), "tilt_deg": (5.0, 60.0),
     "exponent": (50.0, 2000.0, "log"), "ggx_alpha": (0.04, 0.3, "log"), "spec_gain": (0.5, 8.0, "log"),
-    "median": (0.2, 0.6), "noise": (0.005, 0.02),
+    "median": (0.2, 0.6), "noise": (0.005, 0.02), "guide_skew_rad": (-1.2, 1.2), "guide_z_mm": (-1.0, 1.0),
+    "jpeg_quality": (70.0, 95.0),
     "tissue_rgb": ((0.6, 0.85), (0.25, 0.45), (0.18, 0.35)),
 }
 
@@ -76,8 +80,10 @@ def sensor_frame(rng: np.random.Generator) -> tuple[np.ndarray, dict, np.ndarray
     Radiance per pixel: per guide j at ``L_j`` (camera frame, mm), irradiance ``E_j = (d / r_j)^2
     max(0, n . l_j)`` (inverse square, d the plane's depth on the axis), times the tissue colour
     (Lambert) plus ``k_s E_j lobe_j`` in white, with the lobe Phong's ``(r_j . v)^e``, Blinn-Phong's
-    ``(n . h_j)^e`` or GGX's normal distribution scaled to peak 1; exposed, noised, clipped to [0, 1],
-    through the sRGB curve and rounded to 8 bits.
+    ``(n . h_j)^e``, GGX's normal distribution scaled to peak 1, or Cook-Torrance's microfacet lobe
+    (Beckmann's distribution scaled to peak 1, Schlick's Fresnel over F0, the V-cavity shadowing, over
+    ``(n . l_j)(n . v)``: the 4 of its denominator folded into ``k_s``); exposed, noised, clipped to [0, 1],
+    through the sRGB curve and rounded to 8 bits (written as JPEG where ``meta["jpeg_quality"]``).
 
     Parameters
     ----------
@@ -99,7 +105,8 @@ def sensor_frame(rng: np.random.Generator) -> tuple[np.ndarray, dict, np.ndarray
     f = _draw(rng, "focal_px")
     K = np.array([[f, 0, (W - 1) / 2 + rng.uniform(-8, 8)], [0, f, (H - 1) / 2 + rng.uniform(-8, 8)], [0, 0, 1.0]])
     b, th = _draw(rng, "guide_mm"), float(rng.uniform(0, np.pi))
-    guides = np.array([[-b * np.cos(th), -b * np.sin(th), 0.0], [b * np.cos(th), b * np.sin(th), 0.0]])
+    b2, th2, z2 = _draw(rng, "guide_mm"), th + np.pi + _draw(rng, "guide_skew_rad"), _draw(rng, "guide_z_mm")
+    guides = np.array([[b * np.cos(th), b * np.sin(th), 0.0], [b2 * np.cos(th2), b2 * np.sin(th2), z2]])
     tilt, az, depth = np.radians(_draw(rng, "tilt_deg")), rng.uniform(0, 2 * np.pi), _draw(rng, "depth_mm")
     n = np.array([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), -np.cos(tilt)])
     h = -depth * n[2]  # the plane n . X + h = 0 through (0, 0, depth)
@@ -107,7 +114,7 @@ def sensor_frame(rng: np.random.Generator) -> tuple[np.ndarray, dict, np.ndarray
     ray = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu)], -1)
     X = ray * (-h / (ray @ n))[..., None]
     V = -X / np.linalg.norm(X, axis=-1, keepdims=True)
-    lobe = str(rng.choice(["phong", "blinn", "ggx"]))
+    lobe = str(rng.choice(["phong", "blinn", "ggx", "cook_torrance"]))
     e, alpha = _draw(rng, "exponent"), _draw(rng, "ggx_alpha")
     diffuse, spec, truth = np.zeros((H, W)), np.zeros((H, W)), []
     for L in guides:
@@ -122,9 +129,15 @@ def sensor_frame(rng: np.random.Generator) -> tuple[np.ndarray, dict, np.ndarray
             shape = np.maximum(np.einsum("...i,...i", R, V), 0.0) ** e
         elif lobe == "blinn":
             shape = nh ** e
-        else:
+        elif lobe == "ggx":
             a2 = alpha * alpha
             shape = (a2 / ((nh * nh) * (a2 - 1.0) + 1.0)) ** 2  # GGX's D over its peak
+        else:  # Beckmann's D over its peak, Schlick's Fresnel over F0 (0.02), the V-cavity G, over n.l n.v
+            c2, nl, nv = np.maximum(nh * nh, 1e-9), np.maximum(Ld @ n, 1e-6), np.maximum(V @ n, 1e-6)
+            vh = np.clip(np.einsum("...i,...i", V, Hv / np.linalg.norm(Hv, axis=-1, keepdims=True)), 1e-6, 1.0)
+            fresnel = (0.02 + 0.98 * (1.0 - vh) ** 5) / 0.02
+            shape = (np.exp((c2 - 1.0) / (alpha * alpha * c2)) / (c2 * c2) * fresnel
+                     * np.minimum(1.0, 2.0 * nh * np.minimum(nv, nl) / vh) / (nl * nv))
         diffuse += E
         spec += E * shape
         M = L - 2.0 * (n @ L + h) * n  # the guide's mirror image; the specular point on its ray
@@ -139,8 +152,9 @@ def sensor_frame(rng: np.random.Generator) -> tuple[np.ndarray, dict, np.ndarray
               "lights": [{"position_mm": L.tolist(), "intensity": 1.0, "falloff": "inverse_square",
                           "profile_exponent": 0.0} for L in guides],
               "response": {"curve": "srgb", "white_balance": [1, 1, 1], "exposure": 1.0, "clip": 255.0}}
-    meta = {"lobe": lobe, "exponent": e, "ggx_alpha": alpha, "tilt_deg": float(np.degrees(tilt)), "depth_mm": depth,
-            "guide_mm": b, "spec_gain": ks, "median": med, "noise": noise, "size": [W, H]}
+    jpeg = int(round(_draw(rng, "jpeg_quality"))) if rng.uniform() < 1 / 3 else None
+    meta = {"lobe": lobe, "exponent": e, "ggx_alpha": alpha, "jpeg_quality": jpeg, "tilt_deg": float(np.degrees(tilt)),
+            "depth_mm": depth, "guide_mm": [b, b2], "spec_gain": ks, "median": med, "noise": noise, "size": [W, H]}
     return frame, camera, n, np.array(truth), meta
 
 
@@ -175,10 +189,12 @@ def _frame(args) -> tuple[list, float]:
         i += 1_000_000
     sub = folder / f"frame{args[0]:03d}"
     sub.mkdir()
-    cv2.imwrite(str(sub / "frame.png"), frame[..., ::-1])
+    name = "frame.png" if meta["jpeg_quality"] is None else "frame.jpg"
+    cv2.imwrite(str(sub / name), frame[..., ::-1], [] if meta["jpeg_quality"] is None
+                else [cv2.IMWRITE_JPEG_QUALITY, meta["jpeg_quality"]])
     (sub / "camera.json").write_text(json.dumps(camera))
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "simtest.cli", "reconstruct", str(sub / "frame.png"), "-k",
+    proc = subprocess.run([sys.executable, "-m", "simtest.cli", "reconstruct", str(sub / name), "-k",
                            str(sub / "camera.json"), "-o", str(sub / "out"), "--no-overlay", "-j", "1"],
                           capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
     wall = time.perf_counter() - t0

@@ -33,12 +33,12 @@ def test_each_true_highlight_is_its_guides_specular_point_on_the_plane(seed):
 def test_a_sharp_clipped_lobes_brightest_pixels_sit_on_the_true_highlights():
     # the image agrees with the truth: with a sharp lobe the clipped plateau of each guide covers its
     # specular point's pixel (independent of the bisector algebra above)
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(7)  # (its third frame is one)
     for _ in range(20):
         frame, cam, n, truth, meta = sensor_like.sensor_frame(rng)
         W, H = cam["image_size"]
         inside = np.all((truth >= 2) & (truth <= np.array([W, H]) - 3))
-        if inside and meta["spec_gain"] > 3 and meta["lobe"] != "ggx" and meta["exponent"] > 500:
+        if inside and meta["spec_gain"] > 3 and meta["lobe"] in ("phong", "blinn") and meta["exponent"] > 500:
             break
     else:
         pytest.skip("no sharp clipped frame drawn")
