@@ -36,4 +36,5 @@ SECTIONS: dict[str, str] = {
     "harness": "benchmarks.harness:bench_harness",
     "dataset": "benchmarks.dataset:bench_dataset",
     "sensor_like": "benchmarks.sensor_like:bench_sensor_like",
+    "sensor_like_near": "benchmarks.sensor_like:bench_sensor_like_near",
 }

@@ -85,8 +85,8 @@ DATA: dict[str, DataSet] = {
     "sensor-like-independent": DataSet(
         "held_out", "8-bit sRGB frames of planes under two guides made by benchmarks/sensor_like.py (a "
         "generator sharing no code with the renderer or the tests' generators: Phong, Blinn-Phong, GGX and "
-        "Cook-Torrance lobes, random K, guides, tissue colours, exposure, noise, PNG or JPEG) at its ROOT_SEED; "
-        "judged only (`simtest bench --only sensor_like`)"),
+        "Cook-Torrance lobes, random K, guides, tissue colours, exposure, noise, PNG or JPEG) at its ROOT_SEED "
+        "and NEAR_ROOT_SEED; judged only (`simtest bench --only sensor_like`, `sensor_like_near`)"),
     "suites-held-out-seeds": DataSet(
         "held_out", "every bundled suite run at a root seed outside TUNING_ROOT_SEEDS: the same "
         "scenes and settings, new noise, texture and relief draws"),
