@@ -74,8 +74,8 @@ EDGE_PX = 25.0
 FRAMES_PER_REPEAT = 20
 
 
-def _draw(rng, key, ranges=None):
-    lo, hi, *how = (RANGES if ranges is None else ranges)[key]
+def _draw(rng, key, ranges):
+    lo, hi, *how = ranges[key]
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) if how else float(rng.uniform(lo, hi))
 
 
@@ -113,6 +113,8 @@ def sensor_frame(rng: np.random.Generator, ranges: dict | None = None) -> tuple[
     meta : dict
         What was drawn.
     """
+    ranges = RANGES if ranges is None else ranges
+
     def draw(key):
         return _draw(rng, key, ranges)
 
@@ -138,7 +140,8 @@ def sensor_frame(rng: np.random.Generator, ranges: dict | None = None) -> tuple[
         Ld /= r[..., None]
         E = (depth / r) ** 2 * np.maximum(Ld @ n, 0.0)
         Hv = Ld + V
-        nh = np.maximum((Hv / np.linalg.norm(Hv, axis=-1, keepdims=True)) @ n, 0.0)
+        Hv /= np.linalg.norm(Hv, axis=-1, keepdims=True)  # the half vector
+        nh = np.maximum(Hv @ n, 0.0)
         if lobe == "phong":
             R = 2.0 * (Ld @ n)[..., None] * n - Ld
             shape = np.maximum(np.einsum("...i,...i", R, V), 0.0) ** e
@@ -149,7 +152,7 @@ def sensor_frame(rng: np.random.Generator, ranges: dict | None = None) -> tuple[
             shape = (a2 / ((nh * nh) * (a2 - 1.0) + 1.0)) ** 2  # GGX's D over its peak
         else:  # Beckmann's D over its peak, Schlick's Fresnel over F0 (0.02), the V-cavity G, over n.l n.v
             c2, nl, nv = np.maximum(nh * nh, 1e-9), np.maximum(Ld @ n, 1e-6), np.maximum(V @ n, 1e-6)
-            vh = np.clip(np.einsum("...i,...i", V, Hv / np.linalg.norm(Hv, axis=-1, keepdims=True)), 1e-6, 1.0)
+            vh = np.clip(np.einsum("...i,...i", V, Hv), 1e-6, 1.0)
             fresnel = (0.02 + 0.98 * (1.0 - vh) ** 5) / 0.02
             shape = (np.exp((c2 - 1.0) / (alpha * alpha * c2)) / (c2 * c2) * fresnel
                      * np.minimum(1.0, 2.0 * nh * np.minimum(nv, nl) / vh) / (nl * nv))
@@ -158,7 +161,7 @@ def sensor_frame(rng: np.random.Generator, ranges: dict | None = None) -> tuple[
         M = L - 2.0 * (n @ L + h) * n  # the guide's mirror image; the specular point on its ray
         Xs = M * (h / -(n @ M))
         truth.append((K @ Xs)[:2] / Xs[2])
-    tissue = np.array([rng.uniform(*rgb) for rgb in (RANGES if ranges is None else ranges)["tissue_rgb"]])
+    tissue = np.array([rng.uniform(*rgb) for rgb in ranges["tissue_rgb"]])
     ks, med, noise = draw("spec_gain"), draw("median"), draw("noise")
     lin = med / np.median(diffuse * tissue.max()) * (diffuse[..., None] * tissue + ks * spec[..., None])
     lin = np.clip(lin + rng.normal(0.0, noise, lin.shape), 0.0, 1.0)

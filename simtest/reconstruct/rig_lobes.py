@@ -255,12 +255,12 @@ def _dips_between(gray: np.ndarray, region, pts: np.ndarray) -> bool:
     return _significant_dip(tops - float(prof[(t >= 0.25) & (t <= 0.75)].min()), sub, s)
 
 
-def _dip_needed(gray: np.ndarray, est, camera, rig) -> bool:
+def _dip_needed(gray: np.ndarray, est, camera, rig, weak: bool = False) -> bool:
     """Whether a fused candidate's rows need its luma to dip between its fit's points (:func:`_dips_between`): a
-    ``not_specular`` one (pale or weak), and under two guides a ``merged`` or ``cluster`` one whose tops do not
-    stretch along the rig's curve (:func:`_along_the_rig`; a dimmer lobe's top below the brighter's margin)."""
-    return est.status == "not_specular" or (est.status in ("merged", "cluster") and len(rig.positions) == 2
-                                            and not _along_the_rig(gray, est, camera, rig, True))
+    ``not_specular`` one (pale or weak), a ``weak`` twin, and under two guides a ``merged`` or ``cluster`` one whose
+    tops do not stretch along the rig's curve (:func:`_along_the_rig`: a dimmer lobe's top under the other's margin)."""
+    return weak or est.status == "not_specular" or (est.status in ("merged", "cluster") and len(rig.positions) == 2
+                                                    and not _along_the_rig(gray, est, camera, rig, True))
 
 
 def _rows(est, camera, rig, gray, region, pair, others: np.ndarray, weak: bool = False) -> list | None:
@@ -280,7 +280,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray, weak: bool =
             return None
     else:
         return None
-    if (weak or _dip_needed(gray, est, camera, rig)) and not (len(pts) == 2 and _dips_between(gray, region, pts)):
+    if _dip_needed(gray, est, camera, rig, weak) and not (len(pts) == 2 and _dips_between(gray, region, pts)):
         return None  # such a region is two guides' lobes only where its luma dips between their points
     k = np.flatnonzero(_inside(region, pts))
     cut = est.status in ("touches_border", "contour_cut") and _plane(fit)
