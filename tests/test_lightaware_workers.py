@@ -22,10 +22,11 @@ TWO_GUIDES = LightRig((Light((3.0, 0.0, 0.0), 1.0, "inverse_square"),
 
 
 def _frame():
-    """Four copies of a plane's highlight side by side, with a little seeded read noise (so that
-    their fits differ), as an 8-bit RGB frame: four accepted highlights to share."""
+    """Four copies of a plane's highlight, each on its tile edged out to 150 px (so that no fit's ROI holds
+    another: a glint field, not fitted), with a little seeded read noise (so that their fits differ), as an
+    8-bit RGB frame: four accepted highlights to share."""
     img, K, _, _, _ = plane_case(20.0, 30.0, LightRig(TWO_GUIDES.lights[:1]), size=70)
-    tile = img / img.max() * 230.0
+    tile = np.pad(img / img.max() * 230.0, 40, mode="edge")
     frame = np.concatenate([np.concatenate([tile, tile], axis=1)] * 2, axis=0)
     frame = frame + np.random.default_rng(5).normal(0.0, 2.0, frame.shape)
     gray = np.clip(np.rint(frame), 0, 255).astype(np.uint8)

@@ -534,7 +534,7 @@ def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
 
 
 def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highlight=None,
-                     fit_rejected: bool = False, workers: int = 1, plane_only=(), **kwargs) -> list:
+                     fit_rejected: bool = False, workers: int = 1, plane_only=(), weak=(), **kwargs) -> list:
     """The estimates with their light-aware results attached (``light_aware``).
 
     Nothing runs without a rig or with every light at the camera centre. Only accepted highlights
@@ -559,6 +559,9 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     plane_only : collection of int
         Indexes of rejected candidates fitted too, with :data:`PLANE_ONLY`
         (:func:`~simtest.reconstruct.rig_lobes.fused_lobe_candidates`).
+    weak : collection of int
+        Indexes of the estimates ok only as weak twins. A highlight in a glint field (:func:`glint_fields`)
+        gets ``photometric_fit`` alone, ``glint_field`` (unless ``quadric`` or ``cubic`` is True).
     **kwargs
         Passed to :func:`light_aware_estimates`.
 
@@ -588,6 +591,13 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
             jobs[i] = dict(jobs[i], pair_starts=starts)
     if rig.has_separate_lights:
         _add_lobe_partners(out, todo, jobs, kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE))
+        fields = {} if kwargs.get("quadric") or kwargs.get("cubic") else glint_fields(  # (True: every highlight)
+            out, [i for i in todo if jobs[i] is not PLANE_ONLY], rig, kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE),
+            np.shape(image), weak)
+        for i, why in fields.items():
+            out[i] = dataclasses.replace(out[i], light_aware={"photometric_fit": LightAwareEstimate(
+                "photometric_fit", "glint_field", why, None)})
+            todo.remove(i)
     # the others get no fits ({}): under a rig off the camera centre rule 1 recommends the BP ray
     skipped = set(range(len(out))).difference(todo)
     for i in sorted(skipped):
@@ -613,6 +623,23 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
             if on_highlight is not None:
                 on_highlight(done, len(todo))
     return out
+
+
+def glint_fields(out: list, rows: list, rig: LightRig, roi_scale: float, shape, weak=()) -> dict[int, str]:
+    """Why each of the ``rows`` of ``out`` whose photometric fit's ROI (``roi_scale`` times its ROI's half-size
+    about the BP, within ``shape``) is a glint field: it holds as many other glints as the rig has light places,
+    more specular peaks with its own than a smooth patch shows under the rig (one lobe per place), which no
+    plane or quadric images. A glint: a candidate ok (but the ``weak`` twins, unconfirmed) or clipped, not
+    :data:`NOT_FITTED` (texture's bright spots are neither)."""
+    glint = [k for k, e in enumerate(out) if getattr(e, "bp_px", None) is not None and e.status not in NOT_FITTED
+             and ((e.ok and k not in weak) or e.saturated)]
+    bps, fields = np.array([out[k].bp_px for k in glint], np.float64).reshape(-1, 2), {}
+    for i in rows if len(glint) > rig.light_places else ():
+        big = Roi.around(out[i].bp_px, roi_scale * max(Roi(*(int(v) for v in out[i].roi)).shape) / 2.0, shape)
+        if (k := _peaks_in(bps, big) - (i in glint)) >= rig.light_places:
+            fields[i] = (f"{k + 1} specular peaks in the fit's {big.shape[1]} x {big.shape[0]} px ROI, where a smooth "
+                         f"patch under the rig's {rig.light_places} light places shows at most {rig.light_places}")
+    return fields
 
 
 def _add_lobe_partners(out: list, todo: list, jobs: dict, roi_scale: float) -> None:

@@ -208,7 +208,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
         split = fused_lobe_candidates(gray, estimates, camera, rig,
                                       among={i for i, w in zip(maybe, white) if w or estimates[i].saturated})
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
-                              plane_only=split, **kwargs)
+                              plane_only=split, weak=weak_rows, **kwargs)
     split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray, weak=weak_rows)
     out = rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
     out = curved_lobe_rows(image, out, camera, rig, kwargs, gray=gray)

@@ -30,6 +30,9 @@ STATUSES: dict[str, str] = {
                     "frame where none rises): one guide's lobe alone hardly tells which guide lit it, "
                     "and the fit took the other guide's plane; the normal is kept for the record, the "
                     "depth withdrawn",
+    "glint_field": "the fit's ROI holds more specular peaks than the rig has light places (a smooth patch shows "
+                   "one lobe per place): a glint field of micro-relief or folds, which no plane or quadric images; "
+                   "not fitted",
     "plane_misfit": "the plane model does not fit the ROI (its residuals are spatially correlated, "
                     "or hold a curved patch's pattern); the normal is kept for the record, the "
                     "depth withdrawn",
