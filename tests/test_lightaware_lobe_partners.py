@@ -124,18 +124,18 @@ def test_a_roi_holding_more_peaks_than_the_rig_has_lights_is_no_quadrics_image()
 
 def test_a_roi_holding_more_glints_than_the_rig_has_light_places_is_not_fitted():
     # A smooth patch under two guides shows two lobes, as here (the other guide's lobe lies in the highlight's fit
-    # ROI, 2.5 times its detection ROI's half-size). One clipped glint more there (at its quadric ROI's corner)
-    # makes three peaks: a glint field, which no plane or quadric images, and no fit runs. An unclipped rejected
-    # spot (texture's) and an ok peak that is a weak twin (ok only for a twin the fits have still to confirm) are
-    # no glints: at the same place they leave the fits be.
+    # ROI, 2.5 times its detection ROI's half-size). One ok glint more there (at its quadric ROI's corner) makes
+    # three peaks: a glint field, which no plane or quadric images, and no fit runs. A rejected spot, clipped or
+    # not (texture's, a lobe's skirt, a clipped sheen's pieces), and an ok peak that is a weak twin (ok only for a
+    # twin the fits have still to confirm) are no glints: at the same place they leave the fits be.
     img, rig, ests = _case()
     i = next(k for k, e in enumerate(ests) if e.ok)
-    clipped = [dataclasses.replace(g, saturated=True) for g in _glints(ests[i], img.shape, 1)]
-    field = with_light_aware(img, list(ests) + clipped, K, rig, nominal_depth_mm=20.0)[i].light_aware
+    ok = [dataclasses.replace(g, status="ok") for g in _glints(ests[i], img.shape, 1)]
+    field = with_light_aware(img, list(ests) + ok, K, rig, nominal_depth_mm=20.0, quadric=False)[i].light_aware
     assert set(field) == {"photometric_fit"}
     assert field["photometric_fit"].status == "glint_field" and not field["photometric_fit"].has_normal
     assert field["photometric_fit"].detail.startswith("3 specular peaks in the fit's")
-    weak_ok = [dataclasses.replace(g, status="ok") for g in _glints(ests[i], img.shape, 1)]
-    for extra, weak in ((_glints(ests[i], img.shape, 1), ()), (weak_ok, {len(ests)})):
+    clipped = [dataclasses.replace(g, saturated=True) for g in _glints(ests[i], img.shape, 1)]
+    for extra, weak in ((clipped, ()), (ok, {len(ests)})):
         fitted = with_light_aware(img, list(ests) + extra, K, rig, nominal_depth_mm=20.0, weak=weak, quadric=False)
         assert fitted[i].light_aware["photometric_fit"].status != "glint_field"
