@@ -590,10 +590,10 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
         if starts:
             jobs[i] = dict(jobs[i], pair_starts=starts)
     if rig.has_separate_lights:
-        _add_lobe_partners(out, todo, jobs, kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE))
+        roi_scale = kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE)
+        _add_lobe_partners(out, todo, jobs, roi_scale)
         fields = {} if kwargs.get("quadric") or kwargs.get("cubic") else glint_fields(  # (True: every highlight)
-            out, [i for i in todo if jobs[i] is not PLANE_ONLY], rig, kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE),
-            np.shape(image), weak)
+            out, [i for i in todo if jobs[i].get("quadric") is not False], rig, roi_scale, np.shape(image), weak)
         for i, why in fields.items():
             out[i] = dataclasses.replace(out[i], light_aware={"photometric_fit": LightAwareEstimate(
                 "photometric_fit", "glint_field", why, None)})
