@@ -93,23 +93,25 @@ def test_one_light_gives_no_lobe_partners():
         assert q is None or "other candidate" not in (q.detail or "")
 
 
-def _glints(est, shape, n: int) -> list:
-    """``n`` rejected candidates (a glint field's: ``cluster``, 5 px across) at the corners of ``est``'s
-    quadric ROI (1.5 times its detection ROI's half-size), 4 px in."""
+def _glints(est, shape, n: int, status: str = "not_elliptical") -> list:
+    """``n`` candidates of ``status`` (by default rejected spots, a textured wall's or a lobe's skirt's: not
+    glints; 5 px across) at the corners of ``est``'s quadric ROI (1.5 times its detection ROI's half-size), 4 px
+    in."""
     roi = Roi(*(int(v) for v in est.roi))
     near = Roi.around(est.bp_px, 1.5 * max(roi.shape) / 2.0, shape)
     corners = [(near.col0 + 4.0, near.row0 + 4.0), (near.col1 - 5.0, near.row1 - 5.0),
                (near.col0 + 4.0, near.row1 - 5.0), (near.col1 - 5.0, near.row0 + 4.0)]
     return [dataclasses.replace(est, bp_px=(u, v), roi=(int(v) - 2, int(v) + 3, int(u) - 2, int(u) + 3),
-                                status="cluster") for u, v in corners[:n]]
+                                status=status) for u, v in corners[:n]]
 
 
 def test_a_roi_holding_more_peaks_than_the_rig_has_lights_is_no_quadrics_image():
     # One smooth patch shows at most one lobe per place of the rig's lights (two here). With two
     # other candidates inside the misfitting highlight's quadric ROI (a glint field), the default
     # quadric does not run there; with one inside and the other lobe beside it (three peaks in the
-    # ROI the refit would take) it runs on its own ROI and misfits, and is not fitted again. (The glints are
-    # unclipped and rejected: no glint field, which :func:`test_a_roi_holding_more_glints_...` draws.)
+    # ROI the refit would take) it runs on its own ROI and misfits, and is not fitted again. (The spots are
+    # rejected as not elliptical: no glints, so no glint field, which :func:`test_a_roi_holding_more_glints_...`
+    # draws.)
     img, rig, ests = _case()
     first = with_light_aware(img, ests, K, rig, nominal_depth_mm=20.0)
     i = next(k for k, e in enumerate(first) if e.ok and "ROI that holds the 1 other"
@@ -125,16 +127,18 @@ def test_a_roi_holding_more_peaks_than_the_rig_has_lights_is_no_quadrics_image()
 def test_a_roi_holding_more_glints_than_the_rig_has_light_places_is_not_fitted():
     # A smooth patch under two guides shows two lobes, as here (the other guide's lobe lies in the highlight's fit
     # ROI, 2.5 times its detection ROI's half-size). One ok glint more there (at its quadric ROI's corner) makes
-    # three peaks: a glint field, which no plane or quadric images, and no fit runs. A rejected spot, clipped or
-    # not (texture's, a lobe's skirt, a clipped sheen's pieces), and an ok peak that is a weak twin (ok only for a
-    # twin the fits have still to confirm) are no glints: at the same place they leave the fits be.
+    # three peaks: a glint field, which no plane or quadric images, and no fit runs; so does a glint rejected
+    # only as one of a cluster. A rejected spot, clipped or not (texture's, a lobe's skirt, a clipped sheen's
+    # pieces), and an ok peak that is a weak twin (ok only for a twin the fits have still to confirm) are no
+    # glints: at the same place they leave the fits be.
     img, rig, ests = _case()
     i = next(k for k, e in enumerate(ests) if e.ok)
-    ok = [dataclasses.replace(g, status="ok") for g in _glints(ests[i], img.shape, 1)]
-    field = with_light_aware(img, list(ests) + ok, K, rig, nominal_depth_mm=20.0, quadric=False)[i].light_aware
-    assert set(field) == {"photometric_fit"}
-    assert field["photometric_fit"].status == "glint_field" and not field["photometric_fit"].has_normal
-    assert field["photometric_fit"].detail.startswith("3 specular peaks in the fit's")
+    ok = _glints(ests[i], img.shape, 1, "ok")
+    for glint in (ok, _glints(ests[i], img.shape, 1, "cluster")):
+        field = with_light_aware(img, list(ests) + glint, K, rig, nominal_depth_mm=20.0, quadric=False)[i].light_aware
+        assert set(field) == {"photometric_fit"}
+        assert field["photometric_fit"].status == "glint_field" and not field["photometric_fit"].has_normal
+        assert field["photometric_fit"].detail.startswith("3 specular peaks in the fit's")
     clipped = [dataclasses.replace(g, saturated=True) for g in _glints(ests[i], img.shape, 1)]
     for extra, weak in ((clipped, ()), (ok, {len(ests)})):
         fitted = with_light_aware(img, list(ests) + extra, K, rig, nominal_depth_mm=20.0, weak=weak, quadric=False)

@@ -627,11 +627,11 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
 
 def glint_fields(out: list, rows: list, rig: LightRig, roi_scale: float, shape, weak=()) -> dict[int, str]:
     """Why each of the ``rows`` of ``out`` whose photometric fit's ROI (``roi_scale`` times its ROI's half-size
-    about the BP, within ``shape``) is a glint field: it holds as many other glints as the rig has light places,
-    more specular peaks with its own than a smooth patch shows under the rig (one lobe per place), which no
-    plane or quadric images. A glint: a candidate ok by the checks, but the ``weak`` twins (unconfirmed). Not a
-    rejected one, clipped or not: texture's bright spots, a lobe's skirt, a clipped sheen's pieces."""
-    glint = [k for k, e in enumerate(out) if getattr(e, "bp_px", None) is not None and e.ok and k not in weak]
+    about the BP, within ``shape``) holds as many other glints as the rig has light places: more peaks with its own
+    than a smooth patch under the rig shows (a lobe per place). A glint: a candidate ok or only a ``cluster``'s,
+    not a ``weak`` twin (unconfirmed) nor one rejected otherwise (texture's spots, a skirt, a sheen's pieces)."""
+    glint = [k for k, e in enumerate(out) if getattr(e, "bp_px", None) is not None
+             and e.status in ("ok", "cluster") and k not in weak]
     bps, fields = np.array([out[k].bp_px for k in glint], np.float64).reshape(-1, 2), {}
     for i in rows if len(glint) > rig.light_places else ():
         big = Roi.around(out[i].bp_px, roi_scale * max(Roi(*(int(v) for v in out[i].roi)).shape) / 2.0, shape)
