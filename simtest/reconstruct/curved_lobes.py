@@ -31,7 +31,7 @@ from simtest._threads import one_thread_each
 from simtest.decisions import LOBE_TWIN_EXTENT_RATIO, PAIR_TOL_PX
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect_pixels import luma
-from simtest.reconstruct.light_fits import _peaks_in, _roi_union, patch_fit
+from simtest.reconstruct.light_fits import _peaks_in, _reach, _roi_union, patch_fit
 from simtest.reconstruct.rig_lobes import _bright_region, _inside, _own_guide, _row
 from simtest.reconstruct.rig_pairs import estimate_wander_px, patch_specular_points
 
@@ -77,7 +77,7 @@ def _twins(estimates, members: list[int]) -> bool:
 def _fit_roi(estimates, members: list[int], shape, roi_scale: float) -> Roi:
     """The ROI a group's patch fit reads: a square of the first member's curved-fit size (``roi_scale`` times its
     ROI's larger side) about each member's BP."""
-    half = roi_scale * max(Roi(*(int(v) for v in estimates[members[0]].roi)).shape) / 2.0
+    half = _reach(estimates[members[0]], roi_scale)
     return _roi_union(*(Roi.around(estimates[m].bp_px, half, shape) for m in members))
 
 

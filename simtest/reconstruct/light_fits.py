@@ -121,8 +121,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     gray, saturation_level, censor, floor, floor_step = _fit_intensities(img, response, linear, saturation_level)
     diffuse = response is not None if diffuse is None else diffuse
     out: dict[str, LightAwareEstimate] = {}
-    roi = Roi(*(int(v) for v in est.roi))
-    big = Roi.around(est.bp_px, roi_scale * max(roi.shape) / 2.0, img.shape)
+    big = Roi.around(est.bp_px, _reach(est, roi_scale), img.shape)
     start_n = None
     pts, ts = _isocurve_isophotes(gray, big, est.bp_px, refine=len(rig.lights) == 1)  # (isocurve_fit: one light)
     if pts:
@@ -163,7 +162,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         # BP's wander off its specular point: the lobe's size, its isophote's (both guides' lobes on one
         # plane image alike) or the detection's where none closed
         ell = getattr(est, "ellipse", None)
-        lobe = float(max(ell.semi_axes)) if ell is not None else max(roi.shape) / 2.0
+        lobe = float(max(ell.semi_axes)) if ell is not None else _reach(est, 1.0)
         gap = (pair_misfit_px(camera, rig, est.bp_px, pair_starts, pf.normal, pf.distance_mm, shape=img.shape,
                               margin_px=lobe) if pf.has_normal else 0)
         paired = pf.has_normal and gap <= lobe
@@ -174,7 +173,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     if unseen:
         pf = pf.without_depth("guide_misfit", f"{unseen}; {pf.detail}")
     out["photometric_fit"] = pf
-    _curved_fits(out, gray, img.shape, est, roi, camera, rig, saturation_level=saturation_level, cubic=cubic,
+    _curved_fits(out, gray, img.shape, est, camera, rig, saturation_level=saturation_level, cubic=cubic,
                  nominal_depth_mm=nominal_depth_mm, quadric_roi_scale=quadric_roi_scale, quadric=quadric,
                  paired=paired, partners=lobe_partners if rig.has_separate_lights else ())
     return out
@@ -193,6 +192,11 @@ def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
     partners = pair_partners(camera, rig, bp_uv, starts)
     boxes = [Roi.around(uv, half, shape) for uv in partners[_in_frame(partners, shape)]]
     return _roi_union(big, *boxes) if boxes else None
+
+
+def _reach(est, scale: float) -> float:
+    """``scale`` times half the larger side of ``est``'s ROI, px: the half-size of a ROI grown about its BP."""
+    return scale * max(Roi(*(int(v) for v in est.roi)).shape) / 2.0
 
 
 def _peaks_in(bps, roi: Roi) -> int:
@@ -229,7 +233,7 @@ def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, camera, 
     spec = _la.model.plane_rig_intensity(rays, fit.normal, fit.distance_mm, rig, fit.roughness)
     if not spec[0] > 0:
         return ""
-    ring = max(Roi(*(int(v) for v in est.roi)).shape) / 2.0
+    ring = _reach(est, 1.0)
     height = _rise(gray, pts[own], ring)[0]  # (a clipped top: a lower bound)
     for j, s in zip(others, spec[1:]):
         rel = float(s / spec[0])
@@ -376,7 +380,7 @@ def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> R
     return Roi.around(bp_uv, r, shape) if max(roi.shape) / 2.0 < r / LOBE_ROI_MISMATCH else None
 
 
-def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturation_level, nominal_depth_mm,
+def _curved_fits(out: dict, gray, shape, est, camera, rig, *, saturation_level, nominal_depth_mm,
                  quadric_roi_scale, quadric, cubic, paired: bool = False, partners=()) -> None:
     """The curved-patch fits added to ``out`` (the photometric fit's) as ``quadric`` and ``cubic``
     say, and every fit released: its depth within the ceiling, the BP ray's error beside it set, a
@@ -390,7 +394,7 @@ def _curved_fits(out: dict, gray, shape, est, roi: Roi, camera, rig, *, saturati
     rig's lights: the default quadric does not run on a ROI holding as many partners as that, nor the refit where
     the highlight and its partners outnumber them. Under separate lights it also runs where the plane ran off
     beside fewer (none: the guides' lobes fused into the one candidate; one: another guide's lobe)."""
-    half = quadric_roi_scale * max(roi.shape) / 2.0
+    half = _reach(est, quadric_roi_scale)
     near = Roi.around(est.bp_px, half, shape)
     status = out["photometric_fit"].status  # the plane's: which curved fits run by default
     ray = _la.model._rays(camera, np.asarray(est.bp_px, dtype=np.float64)[None])[0]
@@ -634,7 +638,7 @@ def glint_fields(out: list, rows: list, rig: LightRig, roi_scale: float, shape, 
              and e.status in ("ok", "cluster") and k not in weak]
     bps, fields = np.array([out[k].bp_px for k in glint], np.float64).reshape(-1, 2), {}
     for i in rows if len(glint) > rig.light_places else ():
-        big = Roi.around(out[i].bp_px, roi_scale * max(Roi(*(int(v) for v in out[i].roi)).shape) / 2.0, shape)
+        big = Roi.around(out[i].bp_px, _reach(out[i], roi_scale), shape)
         if (k := _peaks_in(bps, big) - (i in glint)) >= rig.light_places:
             fields[i] = (f"{k + 1} specular peaks in the fit's {big.shape[1]} x {big.shape[0]} px ROI, where a smooth "
                          f"patch under the rig's {rig.light_places} light places shows at most {rig.light_places}")
@@ -652,7 +656,7 @@ def _add_lobe_partners(out: list, todo: list, jobs: dict, roi_scale: float) -> N
     for i in todo:
         if jobs[i].get("quadric") is False or i not in use:  # (PLANE_ONLY's, with or without pair starts)
             continue
-        (u, v), reach = out[i].bp_px, roi_scale * max(Roi(*(int(x) for x in out[i].roi)).shape) / 2.0
+        (u, v), reach = out[i].bp_px, _reach(out[i], roi_scale)
         meets = ((rois[:, 0] < v + reach) & (rois[:, 1] > v - reach) & (rois[:, 2] < u + reach)
                  & (rois[:, 3] > u - reach) & (np.array(use) != i))
         if meets.any():

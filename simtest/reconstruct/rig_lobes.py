@@ -567,18 +567,10 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) 
 
     Parameters
     ----------
-    image : ndarray of shape (H, W) or (H, W, 3)
-        The frame the estimates were made on.
-    estimates : sequence of SpecularityEstimate
-        With their light-aware fits (after :func:`split_fused_lobes`).
-    camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K or a camera model.
-    rig : LightRig or None
-        The scope's lights (None, or every light at the camera centre: returned unchanged).
+    image, estimates, camera, rig, gray
+        As in :func:`split_fused_lobes` (the estimates after it).
     fit_kwargs : dict
         The frame's arguments of :func:`~simtest.reconstruct.light_fits.light_aware_estimates`.
-    gray : ndarray of shape (H, W), optional
-        The frame's luma when at hand.
 
     Returns
     -------

@@ -434,10 +434,8 @@ def patch_specular_points(camera, rig, light_normals, light_depths_mm) -> np.nda
 
     Parameters
     ----------
-    camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K, or a model with ``ray_to_pixel``.
-    rig : LightRig
-        The scope's lights, camera frame, mm.
+    camera, rig
+        As in :func:`guide_specular_points`.
     light_normals : array_like of shape (J, 3)
         Unit normals at each guide's specular point, facing the camera, camera frame.
     light_depths_mm : array_like of shape (J,)

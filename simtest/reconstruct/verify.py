@@ -517,16 +517,10 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
 
     Parameters
     ----------
-    image : ndarray of shape (H, W, 3) or (H, W)
-        The frame (RGB).
-    gray : ndarray of shape (H, W)
-        Its luma, image units.
-    ests : sequence of SpecularityEstimate
-        Its estimates (N), as the pipeline completed them.
-    full_scale : float
-        Intensity of white, image units.
-    windowed, grey, response
+    image, gray, full_scale, windowed, grey, response
         As for :func:`frame_evidence`.
+    ests : sequence of SpecularityEstimate
+        The frame's estimates (N), as the pipeline completed them.
     noise : float, optional
         The luma's noise standard deviation, image units; default
         :func:`~simtest.reconstruct.detect.noise_sigma` of ``gray``.

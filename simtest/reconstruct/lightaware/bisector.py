@@ -73,12 +73,8 @@ def reflection_offset_deg(bp_uv, camera, rig: LightRig, normal, distance_mm: flo
 
     Parameters
     ----------
-    bp_uv : array_like of shape (2,)
-        Brightest point (u, v), undistorted px.
-    camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K, or a camera model with ``pixel_to_ray``.
-    rig : LightRig
-        The lights, camera frame, mm.
+    bp_uv, camera, rig
+        As in :func:`bisector`.
     normal : array_like of shape (3,)
         Unit plane normal facing the camera (``n . X = -h`` on the plane), camera frame.
     distance_mm : float
