@@ -657,9 +657,11 @@ RUN_OFF_FACTOR = decision(
     "micro-relief) drives the model to h -> 0 or n -> infinity, where the image hardly depends on "
     "the parameter, and spent the rest of its evaluations there. Of 10 and 100, 100: at 10 a "
     "generated plane lost a light-aware row 0.12 deg off; at 100 no row of the 22 generated "
-    "planes changed, and the light-aware step of the colon renders took half the time.",
-    basis="tuned", stage=_L, chosen_on=("bundled-renders", "sensor-like-generated"),
-    n="11 renders of 7 bundled scenes; 22 plane frames (ggx_plane seeds 40-41, sensor_plane 100-109)")
+    "planes changed, and the light-aware step of the colon renders took half the time. The quadric "
+    "patch's iterates (apex depth and n) stop so too: no result of lightaware-curved's tuning seed moved.",
+    basis="tuned", stage=_L, chosen_on=("bundled-renders", "sensor-like-generated", "suite-lightaware-curved"),
+    n="11 renders of 7 bundled scenes; 22 plane frames (ggx_plane seeds 40-41, sensor_plane 100-109); "
+      "lightaware-curved seed 0 (132 realisations)")
 VALLEY_SCAN_AFTER = decision(
     "VALLEY_SCAN_AFTER", 50, "Levenberg-Marquardt evaluations",
     "A plane fit not converged after this many evaluations crawls along the BP's valley: with large "

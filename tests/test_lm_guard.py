@@ -62,3 +62,25 @@ def test_a_real_glints_curved_patch_fits_repeat_bit_for_bit():
         seen.add((quad.status, quad.n_evaluations, None if quad.normal is None else quad.normal.tobytes()))
         del junk
     assert len(seen) == 1, seen
+
+
+def test_a_batched_solve_stops_at_the_iterate_that_ran_off_not_at_a_trial():
+    # r(p) = exp(-p): LM drives p to infinity and only the budget ends it. A stop that says p past 5 is lost ends
+    # the solve at the first iterate LM accepted beyond 5 (status -1, the reason its message, the residual there);
+    # with a stop that never fires the solve is the unstopped one, bit for bit
+    def fun(p):
+        return np.exp(-np.atleast_2d(p)[:, :1]) if np.ndim(p) == 2 else np.exp(-p[:1])
+
+    free_run = lm_least_squares(fun, [0.0], batched=True, max_nfev=400)
+    never = lm_least_squares(fun, [0.0], batched=True, max_nfev=400, stop=lambda p: "")
+    assert np.array_equal(never.x, free_run.x) and never.nfev == free_run.nfev and never.status == free_run.status
+    accepted = []  # the points LM took its Jacobian at (its iterates): the cost never rises along them
+    def seen(p):
+        accepted.append(p.copy())
+        return "lost" if p[0] > 5.0 else ""
+
+    r = lm_least_squares(fun, [0.0], batched=True, max_nfev=400, stop=seen)
+    assert r.status == -1 and r.message == "lost" and r.x[0] > 5.0 and r.x[0] == accepted[-1][0]
+    assert r.fun[0] == np.exp(-r.x[0]) and r.cost == 0.5 * r.fun[0] ** 2
+    assert all(a[0] <= 5.0 for a in accepted[:-1]) and 0 < r.nfev < free_run.nfev
+    assert np.all(np.diff([np.exp(-a[0]) for a in accepted]) <= 0)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simtest.decisions import ONE_LIGHT_DEPTH_FACTOR
+from simtest.decisions import ONE_LIGHT_DEPTH_FACTOR, RUN_OFF_FACTOR
 from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
@@ -74,10 +74,12 @@ def _quadric_residual(P: _PatchProblem):
     return lambda p: P.residual(_quadric_image(P.d, P.b_ray, p, P.rig_arr, P.Lm)[0])
 
 
-def _quadric_lm(res, p0, x_scale, max_nfev):
-    """Levenberg-Marquardt on the quadric's residual ``res`` from ``p0`` (scipy's result), each start's."""
+def _quadric_lm(res, p0, x_scale, max_nfev, nominal_mm):
+    """Levenberg-Marquardt on the quadric's residual ``res`` from ``p0`` (scipy's result), each start's; stopped as a
+    plane fit's where the apex depth (about ``nominal_mm``) or n ran off (:data:`~simtest.decisions.RUN_OFF_FACTOR`)."""
     with np.errstate(all="ignore"):  # (batched: the finite differences' points imaged at once, each bit for bit)
-        return lm_least_squares(res, p0, max_nfev=max_nfev * 8, x_scale=x_scale, ftol=1e-6, xtol=1e-6, batched=True)
+        return lm_least_squares(res, p0, max_nfev=max_nfev * 8, x_scale=x_scale, ftol=1e-6, xtol=1e-6, batched=True,
+                                stop=lambda p: _implausible(np.exp(p[2]), nominal_mm, np.exp(p[6]), widen=RUN_OFF_FACTOR))
 
 
 def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev):
@@ -88,7 +90,8 @@ def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_rough
     n0 = 50.0 if start_roughness is None else float(start_roughness)
     best, nfev = None, 0
     for s0 in starts:
-        r = _quadric_lm(res, np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)]), x_scale, max_nfev)
+        r = _quadric_lm(res, np.array([0.0, 0.0, np.log(s0), 0.0, 0.0, 0.0, np.log(n0)]), x_scale, max_nfev,
+                        nominal_depth_mm)
         nfev += r.nfev
         if np.isfinite(r.cost) and (best is None or r.cost < best.cost):
             best = r
@@ -219,7 +222,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
                                                float(nominal_depth_mm) * _PROFILE_FACTORS, start_roughness, max_nfev, 7)
         total = nfev + n_profile
         if np.isfinite(cost).any():
-            again = _quadric_lm(res, sol[int(np.argmin(cost))], x_scale, max_nfev)
+            again = _quadric_lm(res, sol[int(np.argmin(cost))], x_scale, max_nfev, float(nominal_depth_mm))
             total += again.nfev
             if np.isfinite(again.cost) and (best is None or again.cost < best.cost):
                 return _quadric_estimate(again, total, P, S, rig, nominal_depth_mm, misfit_sigma, max_nfev)

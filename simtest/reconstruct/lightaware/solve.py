@@ -69,28 +69,38 @@ def _covariance(jac: np.ndarray, resid_var: float) -> np.ndarray | None:
 _GUARD = 2.0**-900
 
 
-def lm_least_squares(fun, x0, *, x_scale=None, batched: bool = False, **options):
+def lm_least_squares(fun, x0, *, x_scale=None, batched: bool = False, stop=None, **options):
     """``scipy.optimize.least_squares(fun, x0, method="lm", ...)`` with a guard: a last parameter z, residual
     ``_GUARD z`` (0: LM keeps z at 0), read by no other residual. SciPy's C MINPACK (1.16.3, 1.17.1) recomputes a
     column's norm one element too far (qrfac), past the last column into heap garbage, so a solve could end in two
     places; the guard is pivoted last and reads a zero there, every other number unchanged. ``batched``: ``fun``
-    takes (K, n) points (the finite differences' as one batch). ``x``, ``fun``, ``jac`` without the guard."""
-    n, last = len(x0), {}  # last: the latest point's residuals (the guard's finite difference is at that point)
+    takes (K, n) points (the finite differences' as one batch). ``x``, ``fun``, ``jac`` without the guard.
+    ``stop(x)`` (``batched`` only) returns a reason to end the solve at an iterate LM accepted (where its Jacobian
+    is taken): status -1, that message, ``nfev`` the points evaluated."""
+    n, last = len(x0), {"n": 0}  # last: the latest point's residuals (the guard's finite difference is at that point)
     def guarded(q):
         q = np.asarray(q, dtype=np.float64)
         if q.ndim == 1:
-            last.update(key=q[:n].tobytes(), r=fun(q[:n]))
+            last.update(key=q[:n].tobytes(), x=q[:n].copy(), r=fun(q[:n]), n=last["n"] + 1)
             return np.append(last["r"], _GUARD * q[n])
+        if stop is not None and (why := stop(last["x"])):
+            raise _RanOff(last["x"], why)
         rows = [last["r"] if p.tobytes() == last.get("key") else None for p in q[:, :n]]  # each its point's alone
         todo = [k for k, v in enumerate(rows) if v is None]
+        last["n"] += len(todo)
         for k, v in zip(todo, fun(q[todo, :n]) if todo else ()):
             rows[k] = v
         return np.column_stack([np.array(rows), _GUARD * q[:, n]])
 
     kw = {"workers": lambda f, qs: list(guarded(np.array(list(qs))))} if batched else {}
     scale = None if x_scale is None else np.append(x_scale, 1.0)
-    r = require("scipy.optimize").least_squares(guarded, np.append(np.asarray(x0, np.float64), 0.0), method="lm",
-                                                 x_scale=scale, **kw, **options)
+    opt = require("scipy.optimize")
+    try:
+        r = opt.least_squares(guarded, np.append(np.asarray(x0, np.float64), 0.0), method="lm", x_scale=scale,
+                              **kw, **options)
+    except _RanOff as off:  # (the residuals are its point's, the last evaluated)
+        return opt.OptimizeResult(x=off.args[0], fun=last["r"], cost=0.5 * float(last["r"] @ last["r"]), status=-1,
+                                  message=off.args[1], nfev=last["n"])
     r.x, r.fun, r.jac = r.x[:n], r.fun[:-1], r.jac[:-1, :n]
     return r
 
@@ -120,7 +130,7 @@ _LM_TOL_NEWTON, _NEWTON_AFTER, _NEWTON_STEP = 1e-5, 10, 0.1
 
 
 class _RanOff(Exception):
-    """Raised in :func:`_solve`'s model where ``stop`` says the iterate ran off."""
+    """Raised in the model of :func:`_solve` or :func:`lm_least_squares` where ``stop`` says the iterate ran off."""
 
 
 def _solve(resjac, p0, args, loss: str, f_scale: float, max_nfev: int, free=None,
