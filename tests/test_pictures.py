@@ -10,6 +10,8 @@ import os
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from simtest.cli import app
@@ -65,6 +67,23 @@ def test_overlay_on_a_crowded_real_size_frame(tmp_path):
     # needles shorter than the spacing of the highlights allows, longer than a few pixels
     L = needle_length_px(np.array([e.bp_px for e in ok]), img.shape)
     assert 0.03 * 1350 <= L < 60
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 400), st.integers(0, 2**32 - 1), st.booleans())
+def test_the_needle_is_one_and_a_half_nearest_spacings_clipped(n, seed, twins):
+    # exact: 1.5 times the median distance from a BP to its nearest other BP (every pair measured), within 3 and
+    # 12 % of the larger side; BPs on one spot (twins) are 0 apart. 1e-3 px: float32 distances of coordinates
+    # below 2000 px (OpenCV's matcher) err by about 1e-4 px
+    rng = np.random.default_rng(seed)
+    shape = (1080, 1350, 3)
+    bps = rng.uniform(0.0, 1349.0, (n, 2)) * rng.uniform(0.01, 1.0)
+    if twins:
+        bps[1] = bps[0]
+    d = np.hypot(*(bps[:, None, :] - bps[None, :, :]).transpose(2, 0, 1))
+    np.fill_diagonal(d, np.inf)
+    expect = float(np.clip(1.5 * np.median(d.min(axis=1)), 0.03 * 1350, 0.12 * 1350))
+    assert needle_length_px(bps, shape) == pytest.approx(expect, abs=1e-3)
 
 
 def test_overlay_draws_only_ok_estimates_by_default(tmp_path):
