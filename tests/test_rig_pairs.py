@@ -160,6 +160,21 @@ def test_an_isophote_pulled_towards_an_enclosed_peak_pairs_it_only_where_the_rig
         assert encloses_only_partners(cam, GUIDES_MM, uv0, ring, pts, np.zeros(2, bool), np.zeros(2)) is partner
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 40), st.booleans())
+def test_a_bps_pair_starts_do_not_depend_on_the_other_bps_asked_with_it(seed, n, distorted):
+    # exact: with_light_aware asks for the starts of the fitted highlights only (not a glint field's), against
+    # every candidate as a partner; each BP's starts are its own row's, the same asked alone or among others
+    rng = np.random.default_rng(seed)
+    dist = np.array([-0.3, 0.1, 0.001, -0.002, 0.0]) if distorted else None
+    cam = PinholeCamera(np.array([[300.0, 0, 320.0], [0, 300.0, 240.0], [0, 0, 1]]), dist_coeffs=dist)
+    bps = rng.uniform([40.0, 40.0], [600.0, 440.0], (n, 2))
+    bps[1] = bps[0] + rng.uniform(-60.0, 60.0, 2)  # a partner near the first (a pair's separation)
+    every = pair_starts(cam, GUIDES_MM, bps, bps)
+    some = sorted(rng.choice(n, size=max(1, n // 3), replace=False).tolist())
+    assert pair_starts(cam, GUIDES_MM, bps[some], bps) == [every[i] for i in some]
+
+
 @settings(max_examples=60, deadline=None)
 @given(tilt=st.floats(0.0, 45.0), az=st.floats(0.0, 360.0), h=st.floats(5.0, 45.0),
        f=st.floats(60.0, 400.0), first=st.integers(0, 1))
