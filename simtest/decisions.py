@@ -79,9 +79,9 @@ DATA: dict[str, DataSet] = {
         "tuning", "frames encoded and decoded by OpenCV's libjpeg at qualities 25 to 98 (the "
         "endoscope suite's renders, textured noisy test images, sensor-like plane frames)"),
     "sensor-like-generated": DataSet(
-        "tuning", "8-bit sRGB frames of planes under the two guides made by the tests' generators "
-        "(tests/test_rig_pairs.py sensor_plane, tests/test_fused_tops.py ggx_plane) at seeds no "
-        "held-out count names"),
+        "tuning", "8-bit sRGB frames of planes under the two guides made by the tests' generators (tests/test_rig_pairs.py "
+        "sensor_plane, tests/test_fused_tops.py ggx_plane) and benchmarks/sensor_like.py's (RANGES at root seed 5, NEAR "
+        "at 5 and 6) at seeds no held-out count names"),
     "sensor-like-independent": DataSet(
         "held_out", "8-bit sRGB frames of planes under two guides made by benchmarks/sensor_like.py (a "
         "generator sharing no code with the renderer or the tests' generators: Phong, Blinn-Phong, GGX and "

@@ -29,9 +29,9 @@ pass of the middle stages):
    confidence; ``broad_lobes`` runs 2 to 5 again on a wider background square where a lobe needs it.
 6. With a camera file's light rig (the CLI, ``rig_centroid.light_aware_with_rig``): ``light_fits`` runs the
    light-aware estimators of ``lightaware`` on the ok highlights; ``rig_lobes`` gives fused guides' lobes
-   a row each, ``rig_pairs`` says where the other guides' highlights lie, ``rig_centroid`` fits fused lobes
-   by their centroid, ``curved_lobes`` a curved patch's lobes, which the plane's checks reject, by one patch
-   fit; ``recommend`` picks each highlight's normal.
+   a row each (and a row left with the BP ray the plane that places it), ``rig_pairs`` says where the other
+   guides' highlights lie, ``rig_centroid`` fits fused lobes by their centroid, ``curved_lobes`` a curved
+   patch's lobes, which the plane's checks reject, by one patch fit; ``recommend`` picks each highlight's normal.
 7. ``result`` (``Reconstruction``, what :func:`reconstruct` returns, and its tables), written by ``io`` (``estimates.json``),
    ``table`` (Parquet), ``overlay`` and ``view3d``; ``frames`` runs folders and videos, ``cli`` the command.
 

@@ -229,7 +229,8 @@ register("cubic_patch_fit", _light_aware("cubic_patch_fit"), kind="light_aware",
 register("rig_centroid", _light_aware("rig_centroid"), kind="light_aware", outputs=("normal", "sigma"),
          status_free=True, description="the bisector for the rig's centroid light, where its lobes fuse into one")
 register("rig_pair", _light_aware("rig_pair"), kind="light_aware", outputs=_FIT, status_free=True,
-         description="the plane two guides' fused clipped tops fix as a stereo pair (rule 0)")
+         description="the plane two guides' highlights share: fused clipped tops as a stereo pair, or another "
+                     "row's plane fit that puts its guide's highlight on this one (rule 0)")
 register("recommended", _recommended, kind="recommendation", outputs=_FIT + ("light_normals",), status_free=True,
          reference=True, description="the normal estimates.json recommends (simtest.reconstruct.recommend)")
 register("photometric_fit_on_specular", _light_aware("photometric_fit_on_specular"),

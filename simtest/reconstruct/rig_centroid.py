@@ -39,7 +39,7 @@ from simtest.reconstruct.verify import WEAK_TWIN, specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
 from simtest.reconstruct.rig_pairs import estimate_wander_px
 from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, guide_specular_points,
-                                           partner_rows, split_fused_lobes, splittable)
+                                           partner_rows, shared_plane_rows, split_fused_lobes, splittable)
 
 __all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
 
@@ -184,8 +184,10 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     """The light-aware step of one image or frame as ``simtest reconstruct`` runs it:
     :func:`~simtest.reconstruct.light_fits.with_light_aware`, then the rig's fused lobes split or
     given their centroid light's normal, then a curved patch's guide lobes fitted as one
-    (:func:`~simtest.reconstruct.curved_lobes.curved_lobe_rows`), and the ok plane fits' sigmas raised by
-    their miss of the law of reflection at the BP (:func:`_obeys_reflection`); a list of SpecularityEstimate.
+    (:func:`~simtest.reconstruct.curved_lobes.curved_lobe_rows`), the ok plane fits' sigmas raised by
+    their miss of the law of reflection at the BP (:func:`_obeys_reflection`), then an ok row left with the BP ray
+    given the plane of a row that places both (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`); a list
+    of SpecularityEstimate.
     """
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
     # a weak twin is ok to the fits and the rig's rules, and stays so where its plane fit confirms the twin (its
@@ -212,7 +214,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray, weak=weak_rows)
     out = rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
     out = curved_lobe_rows(image, out, camera, rig, kwargs, gray=gray)
-    out = [_obeys_reflection(e, camera, rig) for e in out]
+    out = shared_plane_rows([_obeys_reflection(e, camera, rig) for e in out], camera, rig)
     weak = [k for k, e in enumerate(out) if e.ok and tuple(e.bp_px) in weak_bps]
     if weak:
         bps = np.array([e.bp_px for e in out], np.float64)

@@ -30,6 +30,12 @@ whose core is ``too_small``) is the other guide's where its bright region holds 
 whose recommended quadric (one curved patch fitted to every guide's lobe) puts its own guide's specular point on its BP
 makes the rejected candidate whose BP lies at another guide's point that guide's row, from the same fit.
 
+Shared plane. An ok row left with the BP ray (its own fits misfit: another guide's lobe on its ROI, a lobe the
+model does not hold) is a guide's highlight on the plane of an ok row whose recommended plane fit (ok, with its
+distance) puts its own guide's point on its BP and another guide's on this row's (each within ``PAIR_TOL_PX`` plus
+the BP's wander): the row gets that plane as ``rig_pair``, its depth where its ray meets the plane, the plane's
+sigma. One plane images every guide's highlight; two highlights at the points it predicts are its evidence.
+
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each of at least
 :data:`~simtest.decisions.MIN_AREA_PX`) where the rig pairs them gives one row per top at its centroid, with the plane
 the two fix as a stereo pair (``rig_pair``, :func:`~simtest.reconstruct.rig_pairs.pair_plane`).
@@ -57,7 +63,8 @@ from simtest.reconstruct.recommend import without_guide_spread
 from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wander_px, guide_specular_points,
                                            other_guide_curves, pair_plane, patch_specular_points)
 
-__all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "partner_rows", "split_fused_lobes",
+__all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "partner_rows", "shared_plane_rows",
+           "split_fused_lobes",
            "splittable"]
 
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring, :func:`splittable`).
@@ -611,4 +618,46 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) 
                           f"BP at its specular point, normal from its photometric fit, which puts guide {i + 1}'s back",
                           light_aware=fits)
             bps[c] = q[j]
+    return out
+
+
+def shared_plane_rows(estimates, camera, rig) -> list:
+    """The estimates with each ok row left with the BP ray given the plane of an ok row that places both
+    (``rig_pair``, its depth released as the plane fit's; module docstring).
+
+    Parameters
+    ----------
+    estimates : sequence of SpecularityEstimate
+        After the light-aware fits and the rig's rows (:func:`partner_rows`), their sigmas final.
+    camera, rig
+        As in :func:`split_fused_lobes`.
+
+    Returns
+    -------
+    list of SpecularityEstimate
+        In the order of ``estimates``.
+    """
+    out = list(estimates)
+    left = [b for b, e in enumerate(out) if e.ok and e.light_aware is not None and e.recommended.normal_from == "bp_ray"]
+    donors = [a for a, e in enumerate(out) if e.ok and e.recommended.normal_from == "photometric_fit"
+              and _plane(e.light_aware["photometric_fit"])] if left and _offset_rig(rig) else []
+    bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
+    reach = PAIR_TOL_PX + np.array([estimate_wander_px(e) for e in out]) if donors else None
+    for a, fit in ((a, out[a].light_aware["photometric_fit"]) for a in donors):
+        pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+        if (i := _own_guide(pts, bps[a], reach[a])) is None:
+            continue
+        for b in [b for b in left if "rig_pair" not in out[b].light_aware]:
+            if (j := _own_guide(pts, bps[b], reach[b])) is None or j == i:
+                continue
+            ray = np.asarray(_model(camera).pixel_to_ray(bps[b][None]), np.float64)[0]
+            depth = fit.distance_mm / -float(np.asarray(fit.normal) @ ray)  # the plane n . X = -h along the ray
+            rel = fit.depth_sigma_mm / fit.depth_mm if fit.depth_mm and fit.depth_sigma_mm is not None else None
+            detail = (f"guide {j + 1}'s highlight where row {a}'s plane fit puts it ({np.linalg.norm(pts[j] - bps[b]):.2g}"
+                      f" px), with guide {i + 1}'s on that row's BP ({np.linalg.norm(pts[i] - bps[a]):.2g} px)")
+            pair = LightAwareEstimate("rig_pair", fit.status, detail, np.array(fit.normal, np.float64),
+                                      depth_mm=depth if fit.depth_mm is not None else None,
+                                      normal_sigma_deg=fit.normal_sigma_deg, depth_sigma_mm=rel and rel * depth,
+                                      distance_mm=fit.distance_mm, bp_ray_error_deg=fit.bp_ray_error_deg)
+            out[b] = dataclasses.replace(out[b], light_aware={**out[b].light_aware, "rig_pair": pair})
     return out
