@@ -64,8 +64,7 @@ from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wa
                                            other_guide_curves, pair_plane, patch_specular_points)
 
 __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "partner_rows", "shared_plane_rows",
-           "split_fused_lobes",
-           "splittable"]
+           "split_fused_lobes", "splittable"]
 
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring, :func:`splittable`).
 SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut", "touches_border",
@@ -540,6 +539,16 @@ def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarra
     return None
 
 
+def _placing_plane(est, bp, reach: float, camera, rig):
+    """``(fit, pts, i)`` of an ok row whose recommended plane fit (ok, with its distance) puts its own guide i's
+    specular point within ``reach`` px of its BP ``bp``, ``pts`` (J, 2) every guide's; None for any other row."""
+    fit = (est.light_aware or {}).get("photometric_fit")
+    if not (est.ok and est.recommended.normal_from == "photometric_fit" and _plane(fit)):
+        return None
+    pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+    return None if (i := _own_guide(pts, bp, reach)) is None else (fit, pts, i)
+
+
 def _own_guide(pts: np.ndarray, bp, reach: float) -> int | None:
     """The guide whose point of ``pts`` (J, 2) lies nearest ``bp``, where within ``reach`` px; else None."""
     own = np.nan_to_num(np.linalg.norm(pts - np.asarray(bp, np.float64), axis=1), nan=np.inf)
@@ -590,16 +599,12 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) 
     bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
     wander = np.array([estimate_wander_px(e) for e in out])
     for a, est in enumerate(estimates):
-        fit, source = (est.light_aware or {}).get("photometric_fit"), est.recommended.normal_from if est.ok else None
-        if source == "quadric_fit":
+        if est.ok and est.recommended.normal_from == "quadric_fit":
             gray = luma(np.asarray(image)) if gray is None else gray
             _quadric_partners(out, a, bps, wander, camera, rig, gray)
-        if not (source == "photometric_fit" and _plane(fit)):
+        if (placed := _placing_plane(est, bps[a], PAIR_TOL_PX + wander[a], camera, rig)) is None:
             continue
-        pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
-        i = _own_guide(pts, bps[a], PAIR_TOL_PX + wander[a])
-        if i is None:
-            continue  # its fit does not place its own highlight
+        _, pts, i = placed
         for j in range(len(pts)):
             gray = luma(np.asarray(image)) if gray is None and j != i else gray
             found = None if j == i else _partner(out, bps, wander, pts[j], gray)
@@ -639,14 +644,14 @@ def shared_plane_rows(estimates, camera, rig) -> list:
     """
     out = list(estimates)
     left = [b for b, e in enumerate(out) if e.ok and e.light_aware is not None and e.recommended.normal_from == "bp_ray"]
-    donors = [a for a, e in enumerate(out) if e.ok and e.recommended.normal_from == "photometric_fit"
-              and _plane(e.light_aware["photometric_fit"])] if left and _offset_rig(rig) else []
+    if not (left and _offset_rig(rig)):
+        return out
     bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
-    reach = PAIR_TOL_PX + np.array([estimate_wander_px(e) for e in out]) if donors else None
-    for a, fit in ((a, out[a].light_aware["photometric_fit"]) for a in donors):
-        pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
-        if (i := _own_guide(pts, bps[a], reach[a])) is None:
+    reach = PAIR_TOL_PX + np.array([estimate_wander_px(e) for e in out])
+    for a, est in enumerate(estimates):  # (a row made here is no plane fit's: the donors are the rows given)
+        if (placed := _placing_plane(est, bps[a], reach[a], camera, rig)) is None:
             continue
+        fit, pts, i = placed
         for b in [b for b in left if "rig_pair" not in out[b].light_aware]:
             if (j := _own_guide(pts, bps[b], reach[b])) is None or j == i:
                 continue
