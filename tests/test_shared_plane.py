@@ -86,3 +86,24 @@ def test_a_rig_at_the_camera_centre_changes_nothing():
     rows = _rows(n, uv, depths, 25.0)
     centre = LightRig((Light((0.0, 0.0, 0.0), 1.0, "inverse_square"),))
     assert shared_plane_rows(rows, K, centre) == rows
+
+
+def test_of_two_planes_that_place_the_row_the_surer_one_lends():
+    # two donors at guide 1's highlight, planes 0.02 deg apart (both place guide 2's within PAIR_TOL_PX):
+    # the row takes the plane of the smaller sigma, whichever row comes first
+    n, uv, depths = _plane(20.0, 30.0, 25.0)
+    m, _, m_depths = _plane(20.02, 30.0, 25.0)
+    for first_sigma, second_sigma in ((0.5, 0.05), (0.05, 0.5)):
+        rows = _rows(n, uv, depths, 25.0)
+        a, b = rows
+        fit = a.light_aware["photometric_fit"]
+        other = _row(uv[0], LightAwareEstimate("photometric_fit", "ok", "", m, depth_mm=m_depths[0],
+                                               normal_sigma_deg=second_sigma, depth_sigma_mm=0.01 * m_depths[0],
+                                               distance_mm=25.0, bp_ray_error_deg=5.0))
+        rows = [_row(uv[0], LightAwareEstimate("photometric_fit", "ok", "", n, depth_mm=depths[0],
+                                               normal_sigma_deg=first_sigma, depth_sigma_mm=fit.depth_sigma_mm,
+                                               distance_mm=25.0, bp_ray_error_deg=5.0)), b, other]
+        made = shared_plane_rows(rows, K, RIG)[1].recommended
+        assert made.normal_from == "rig_pair"
+        assert np.array_equal(made.normal, n if first_sigma < second_sigma else m)
+        assert made.normal_sigma_deg == min(first_sigma, second_sigma)

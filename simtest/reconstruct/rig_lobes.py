@@ -30,11 +30,12 @@ whose core is ``too_small``) is the other guide's where its bright region holds 
 whose recommended quadric (one curved patch fitted to every guide's lobe) puts its own guide's specular point on its BP
 makes the rejected candidate whose BP lies at another guide's point that guide's row, from the same fit.
 
-Shared plane. An ok row left with the BP ray (its own fits misfit: another guide's lobe on its ROI, a lobe the
-model does not hold) is a guide's highlight on the plane of an ok row whose recommended plane fit (ok, with its
-distance) puts its own guide's point on its BP and another guide's on this row's (each within ``PAIR_TOL_PX`` plus
-the BP's wander): the row gets that plane as ``rig_pair``, its depth where its ray meets the plane, the plane's
-sigma. One plane images every guide's highlight; two highlights at the points it predicts are its evidence.
+Shared plane. An ok row left with the BP ray (its own fits misfit: another guide's lobe on its ROI, a lobe the model
+does not hold) is a guide's highlight on the plane of an ok row whose recommended plane fit (ok, with its distance)
+puts its own guide's point on its BP and another guide's on this row's (each within ``PAIR_TOL_PX`` plus the BP's
+wander): the row gets that plane as ``rig_pair`` (of two such, the smaller sigma's), its depth where its ray meets the
+plane, the plane's sigma. One plane images every guide's highlight; two highlights at the points it predicts are its
+evidence.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each of at least
 :data:`~simtest.decisions.MIN_AREA_PX`) where the rig pairs them gives one row per top at its centroid, with the plane
@@ -648,10 +649,9 @@ def shared_plane_rows(estimates, camera, rig) -> list:
         return out
     bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
     reach = PAIR_TOL_PX + np.array([estimate_wander_px(e) for e in out])
-    for a, est in enumerate(estimates):  # (a row made here is no plane fit's: the donors are the rows given)
-        if (placed := _placing_plane(est, bps[a], reach[a], camera, rig)) is None:
-            continue
-        fit, pts, i = placed
+    donors = [(a, p) for a, e in enumerate(estimates) if (p := _placing_plane(e, bps[a], reach[a], camera, rig))]
+    # the rows given (a row made here is no plane fit's), the surest plane first where two place one row
+    for a, (fit, pts, i) in sorted(donors, key=lambda d: np.inf if (g := d[1][0].normal_sigma_deg) is None else g):
         for b in [b for b in left if "rig_pair" not in out[b].light_aware]:
             if (j := _own_guide(pts, bps[b], reach[b])) is None or j == i:
                 continue
