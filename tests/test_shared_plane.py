@@ -93,16 +93,14 @@ def test_of_two_planes_that_place_the_row_the_surer_one_lends():
     # the row takes the plane of the smaller sigma, whichever row comes first
     n, uv, depths = _plane(20.0, 30.0, 25.0)
     m, _, m_depths = _plane(20.02, 30.0, 25.0)
+
+    def donor(normal, depth, sigma):
+        return _row(uv[0], LightAwareEstimate("photometric_fit", "ok", "", normal, depth_mm=depth, normal_sigma_deg=sigma,
+                                              depth_sigma_mm=0.01 * depth, distance_mm=25.0, bp_ray_error_deg=5.0))
+
+    b = _rows(n, uv, depths, 25.0)[1]
     for first_sigma, second_sigma in ((0.5, 0.05), (0.05, 0.5)):
-        rows = _rows(n, uv, depths, 25.0)
-        a, b = rows
-        fit = a.light_aware["photometric_fit"]
-        other = _row(uv[0], LightAwareEstimate("photometric_fit", "ok", "", m, depth_mm=m_depths[0],
-                                               normal_sigma_deg=second_sigma, depth_sigma_mm=0.01 * m_depths[0],
-                                               distance_mm=25.0, bp_ray_error_deg=5.0))
-        rows = [_row(uv[0], LightAwareEstimate("photometric_fit", "ok", "", n, depth_mm=depths[0],
-                                               normal_sigma_deg=first_sigma, depth_sigma_mm=fit.depth_sigma_mm,
-                                               distance_mm=25.0, bp_ray_error_deg=5.0)), b, other]
+        rows = [donor(n, depths[0], first_sigma), b, donor(m, m_depths[0], second_sigma)]
         made = shared_plane_rows(rows, K, RIG)[1].recommended
         assert made.normal_from == "rig_pair"
         assert np.array_equal(made.normal, n if first_sigma < second_sigma else m)
