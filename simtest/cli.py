@@ -6,6 +6,7 @@ imported only when it runs or shows its help, so ``simtest --help`` answers at o
 
 from __future__ import annotations
 
+import gc
 import importlib
 import os
 import signal
@@ -190,7 +191,10 @@ def main() -> None:
     quiet_warnings()
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, exit_on_signal)
-    app(prog_name="simtest")  # also under `python -m simtest.cli`
+    try:
+        app(prog_name="simtest")  # also under `python -m simtest.cli`
+    finally:  # outputs written: the exit's last collections need not walk every object left, to free what it frees
+        gc.freeze()
 
 
 if __name__ == "__main__":
