@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -55,7 +58,7 @@ def test_a_malformed_answer_is_named(monkeypatch):
         score_external("_ext_bad:f", np.zeros((5, 5)), cam, None, None, [((1, 2), n)], 3.0)
 
 
-@pytest.mark.parametrize("spec, why", [("nonsense", "expected package.module:function"),
+@pytest.mark.parametrize("spec, why", [("nonsense", "expected package.module:function or path/to/file.py"),
                                        ("no_such_module_xyz:f", "cannot import"),
                                        ("json:no_such_function", "has no function"),
                                        ("bp_ray=os.path:join", "is taken"),
@@ -72,6 +75,8 @@ def test_a_bad_spec_is_refused_in_one_line(spec, why):
 
 def test_the_suite_keeps_its_external_estimators_through_overrides(monkeypatch):
     monkeypatch.syspath_prepend(str(EXAMPLE))
+    monkeypatch.setitem(sys.modules, "my_method", None)  # imported here, then forgotten (README's copy: its own)
+    del sys.modules["my_method"]
     s = with_external(load_suite("quick"), ["mine=my_method:bp_ray_cv"])
     t = s.with_overrides(seed=3, realisations=2)
     assert t.estimators[-1] == "mine" and t.external == (("mine", "my_method:bp_ray_cv"),)
@@ -79,12 +84,11 @@ def test_the_suite_keeps_its_external_estimators_through_overrides(monkeypatch):
 
 #: The README's line that runs the example (tests/test_readme_examples.py runs it and checks its
 #: run with :func:`check_external_run`: the suite runs once for both).
-README_LINE = ("PYTHONPATH=tests/data/external simtest validate quick --estimator my_method:bp_ray_cv "
-               "-o out/reports")
+README_LINE = "simtest validate quick --estimator tests/data/external/my_method.py:bp_ray_cv -o out/reports"
 
 
 def check_external_run(folder: Path) -> None:
-    """The run folder of ``simtest validate quick --estimator my_method:bp_ray_cv``, as the README
+    """The run folder of ``simtest validate quick --estimator .../my_method.py:bp_ray_cv``, as the README
     shows it: the external column is reported beside the built-in ones, and an OpenCV BP ray errs
     as the built-in BP ray does on the paper protocol's planes."""
     res = json.loads((folder / "results.json").read_text())
@@ -107,3 +111,47 @@ def test_the_readme_runs_the_example_and_its_test_checks_the_run():
     assert README_LINE in README.read_text(encoding="utf-8").splitlines()
     examples = (HERE / "test_readme_examples.py").read_text(encoding="utf-8")
     assert "check_external_run(" in examples
+
+
+@pytest.mark.parametrize("name, text, why", [("absent_method_xyz.py", None, "no such file"),
+                                             ("my-method.py", "def f(a, b, c, d): pass\n", "is no module name"),
+                                             # a file whose name an installed module takes: that one would run
+                                             ("json.py", "def f(a, b, c, d): pass\n", "imports .*json.* first")])
+def test_a_file_that_cannot_be_its_module_is_refused_in_one_line(tmp_path, monkeypatch, name, text, why):
+    monkeypatch.setattr(sys, "path", list(sys.path))  # (the file's folder joins it)
+    if text is not None:
+        (tmp_path / name).write_text(text)
+    with pytest.raises(ExternalError, match=why):
+        external_estimators([f"{tmp_path / name}:f"], taken=())
+
+
+def test_a_file_imports_by_its_name_from_its_folder(tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    (tmp_path / "ext_file_probe_95.py").write_text("def f(frame, camera, rig, response):\n    return 1\n")
+    try:
+        got = external_estimators([f"mine={tmp_path / 'ext_file_probe_95.py'}:f"], taken=())
+        # the workers import the module by its name: the folder ends sys.path, after what is installed
+        assert got == (("mine", "ext_file_probe_95:f"),) and sys.path[-1] == str(tmp_path)
+        assert load_external("ext_file_probe_95:f")(None, None, None, None) == 1
+    finally:
+        sys.modules.pop("ext_file_probe_95", None)
+
+
+def test_a_method_beside_the_user_runs_without_pythonpath(tmp_path):
+    """As the console script runs (``-P``: neither the current folder nor the file's on ``sys.path``), a
+    module in the current folder and a file elsewhere are scored, in the suite's worker processes."""
+    here, elsewhere = tmp_path / "here", tmp_path / "methods"
+    for folder, name in ((here, "my_method.py"), (elsewhere, "their_method.py")):
+        folder.mkdir()
+        shutil.copy2(EXAMPLE / "my_method.py", folder / name)
+    r = subprocess.run([sys.executable, "-P", "-m", "simtest.cli", "validate", "quick", "--no-progress", "-o", "out",
+                        "--run-id", "r", "--estimator", "my_method:bp_ray_cv",
+                        "--estimator", f"theirs={elsewhere / 'their_method.py'}:bp_ray_cv"],
+                       cwd=here, env=dict(os.environ, PYTHONPATH=str(HERE.parent)), capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads((here / "out" / "quick" / "r" / "results.json").read_text())
+    assert res["suite"]["estimators"][-2:] == ["bp_ray_cv", "theirs"]
+    for case in res["cases"]:
+        for name in ("bp_ray_cv", "theirs"):
+            assert case["metrics"]["estimators"][name]["n_ok"] > 0, (case["id"], name)

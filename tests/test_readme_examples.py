@@ -127,6 +127,11 @@ def _run_line(line: str, repo: Path, env: dict, monkeypatch) -> tuple[int, str]:
     try:
         with monkeypatch.context() as mp:
             mp.chdir(repo)
+            # the clone's example is the one a line names; pytest's doctest collection imported the checkout's
+            ours = (ROOT / "tests" / "data" / "external").resolve()
+            mp.setattr(sys, "path", [p for p in sys.path if Path(p or ".").resolve() != ours])
+            for example in ours.glob("*.py"):
+                mp.delitem(sys.modules, example.stem, raising=False)
             for name, value in (w.split("=", 1) for w in sets):
                 mp.setenv(name, value)
                 if name == "PYTHONPATH":

@@ -189,7 +189,8 @@ def validate_command(
     estimator: Optional[list[str]] = typer.Option(  # noqa: UP045
         None, "--estimator", metavar="[NAME=]MODULE:FUNCTION",
         help="Also score your own method, function(frame, camera, rig, response) -> {'bp_px': "
-             "(N, 2), 'normal': (N, 3)}, beside the built-in estimators (repeatable; importable in the workers)."),
+             "(N, 2), 'normal': (N, 3)}, beside the built-in estimators (repeatable; MODULE importable, from "
+             "the current folder too, or a path/to/file.py)."),
 ) -> None:
     """Run a validation suite and write its report.
 

@@ -1,7 +1,9 @@
 """A researcher's own method on the suites, beside the built-in estimators.
 
-An external estimator is one function, ``package.module:function`` (importable in every worker),
-called as ``function(frame, camera, rig, response) -> mapping``:
+An external estimator is one function, ``package.module:function`` (importable, the current folder
+included, as ``python -m`` finds modules) or ``path/to/file.py:function`` (the file's folder joins the end of
+``sys.path``, so the workers started after it import it by its name), called as
+``function(frame, camera, rig, response) -> mapping``:
 
 - ``frame``: ndarray of shape (H, W) or (H, W, 3), the image the built-in estimators reconstruct
   (rendered: the sensor image or video frame; ``paper``: float32 normalised to 1 at the BP);
@@ -22,8 +24,11 @@ import dataclasses
 import importlib
 import inspect
 import math
+import os
 import re
+import sys
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -32,7 +37,7 @@ from simtest.geometry.angles import angle_between_deg
 __all__ = ["ExternalError", "external_estimators", "load_external", "score_external", "with_external"]
 
 _SPEC = re.compile(r"(?:(?P<name>[A-Za-z_][A-Za-z0-9_]*)=)?"
-                   r"(?P<module>[A-Za-z_][A-Za-z0-9_.]*):(?P<func>[A-Za-z_][A-Za-z0-9_]*)")
+                   r"(?P<module>[A-Za-z_][A-Za-z0-9_.]*|[^:=]+\.py):(?P<func>[A-Za-z_][A-Za-z0-9_]*)")
 
 
 class ExternalError(ValueError):
@@ -40,12 +45,12 @@ class ExternalError(ValueError):
 
 
 def load_external(spec: str) -> Callable:
-    """Import the function of ``spec`` (``[name=]package.module:function``).
+    """Import the function of ``spec`` (``[name=]package.module:function`` or ``[name=]path/to/file.py:function``).
 
     Parameters
     ----------
     spec : str
-        Where the function lives; an optional ``name=`` prefix names its column.
+        Where the function lives (module docstring); an optional ``name=`` prefix names its column.
 
     Returns
     -------
@@ -55,17 +60,22 @@ def load_external(spec: str) -> Callable:
     Raises
     ------
     ExternalError
-        If ``spec`` is not of that form, the module cannot be imported, it has no callable of
-        that name, or its signature cannot take ``(frame, camera, rig, response)``; the message names ``spec``.
+        If ``spec`` is not of that form, the file does not exist, the module cannot be imported (or a file's
+        name imports another module first), it has no callable of that name, or its signature cannot take
+        ``(frame, camera, rig, response)``; the message names ``spec``.
     """
     m = _SPEC.fullmatch(spec)
     if m is None:
-        raise ExternalError(f"--estimator {spec!r}: expected package.module:function "
-                            "(optionally name=package.module:function)")
+        raise ExternalError(f"--estimator {spec!r}: expected package.module:function or path/to/file.py:function "
+                            "(optionally name=... before either)")
+    name = _module_name(spec, m["module"])
     try:
-        module = importlib.import_module(m["module"])
+        module = importlib.import_module(name)
     except Exception as exc:  # noqa: BLE001 - any import failure of a user's module is one line
-        raise ExternalError(f"--estimator {spec!r}: cannot import {m['module']}: {type(exc).__name__}: {exc}") from None
+        raise ExternalError(f"--estimator {spec!r}: cannot import {name}: {type(exc).__name__}: {exc}") from None
+    origin = getattr(module.__spec__, "origin", None) or ""  # the file the name imports
+    if name != m["module"] and Path(origin).resolve() != Path(m["module"]).expanduser().resolve():
+        raise ExternalError(f"--estimator {spec!r}: the name {name!r} imports {origin} first: rename the file")
     fn = getattr(module, m["func"], None)
     if not callable(fn):
         raise ExternalError(f"--estimator {spec!r}: {m['module']} has no function {m['func']!r}")
@@ -79,20 +89,36 @@ def load_external(spec: str) -> Callable:
     return fn
 
 
+def _module_name(spec: str, where: str) -> str:
+    """The module name ``where`` imports as: a ``.py`` file's stem, its folder appended to ``sys.path``; else
+    ``where`` itself, the current folder appended to ``sys.path`` (a console script's path lacks it)."""
+    folder = os.getcwd()
+    if where.endswith(".py"):
+        path = Path(where).expanduser().resolve()
+        if not path.is_file() or not path.stem.isidentifier():
+            why = "no such file" if not path.is_file() else f"{path.stem!r} is no module name"
+            raise ExternalError(f"--estimator {spec!r}: {why}")
+        folder, where = str(path.parent), path.stem
+    if folder not in sys.path:  # appended: what is installed keeps its names
+        sys.path.append(folder)
+    return where
+
+
 def external_estimators(specs: Sequence[str], taken: Sequence[str]) -> tuple[tuple[str, str], ...]:
     """Each spec's column name and spec, checked (importable, named once, no built-in's name).
 
     Parameters
     ----------
     specs : sequence of str
-        ``[name=]package.module:function`` each; the name defaults to the function's.
+        ``[name=]package.module:function`` or ``[name=]path/to/file.py:function`` each; the name defaults to
+        the function's.
     taken : sequence of str
         The names already scored (the suite's estimators).
 
     Returns
     -------
     tuple of (str, str)
-        ``(name, "package.module:function")`` pairs, in the order given.
+        ``(name, "package.module:function")`` pairs, in the order given (a file's module: its stem).
 
     Raises
     ------
@@ -109,7 +135,7 @@ def external_estimators(specs: Sequence[str], taken: Sequence[str]) -> tuple[tup
             raise ExternalError(f"--estimator {spec!r}: the name {name!r} is taken; give another "
                                 "as NAME=package.module:function")
         used.add(name)
-        out.append((name, f"{m['module']}:{m['func']}"))
+        out.append((name, f"{_module_name(spec, m['module'])}:{m['func']}"))
     return tuple(out)
 
 
