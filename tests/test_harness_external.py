@@ -155,3 +155,48 @@ def test_a_method_beside_the_user_runs_without_pythonpath(tmp_path):
     for case in res["cases"]:
         for name in ("bp_ray_cv", "theirs"):
             assert case["metrics"]["estimators"][name]["n_ok"] > 0, (case["id"], name)
+
+
+#: A method that checks what the protocol hands it on a rendered endoscope frame (the scene's camera model of the
+#: frame's size, the two-guide rig in mm, the video sensor's response) and answers the BP ray of the brightest pixel.
+_CHECKING_METHOD = '''
+import cv2
+import numpy as np
+from simtest.geometry.cameras import CameraModel
+from simtest.geometry.lights import LightRig
+
+
+def checked(frame, camera, rig, response):
+    assert isinstance(camera, CameraModel) and tuple(camera.image_size) == frame.shape[1::-1]
+    assert isinstance(rig, LightRig) and len(rig.positions) == 2 and 0 < abs(rig.positions[0][0]) < 10
+    assert response is not None and frame.dtype == np.uint8
+    white = cv2.GaussianBlur(frame.min(axis=-1).astype(np.float32), (5, 5), 1.0)  # specular light is white
+    n, labels = cv2.connectedComponents((white >= 0.9 * white.max()).astype(np.uint8))
+    vu = [np.unravel_index(np.argmax(np.where(labels == i, white, -np.inf)), white.shape) for i in range(1, n)]
+    bp = np.asarray(vu, dtype=float).reshape(-1, 2)[:, ::-1]
+    return {"bp_px": bp, "normal": -camera.pixel_to_ray(bp)}
+'''
+
+
+@pytest.mark.render
+@pytest.mark.slow
+def test_a_method_runs_on_the_endoscope_protocol_with_its_camera_rig_and_response(tmp_path):
+    """The endoscope suite's protocol hands the method its rendered video frame with the camera model, the light
+    rig and the sensor response (one case of the suite, guides 4 mm off the lens, one realisation; its light-aware
+    estimators make the frame the video's), and scores it beside the built-in estimators."""
+    (tmp_path / "checking_method.py").write_text(_CHECKING_METHOD)
+    suite = tmp_path / "endoscope_one.toml"
+    suite.write_text('[suite]\nname = "endoscope_one"\nprotocol = "rendered"\nscene = "colonoscope_plane"\n'
+                     'realisations = 1\nestimators = ["recommended", "photometric_fit", "bp_ray"]\n\n[[sweep]]\nname = "guide_offset"\n'
+                     'parameter = "light.guide_offset_mm"\nvalues = [4.0]\n')
+    r = subprocess.run([sys.executable, "-P", "-m", "simtest.cli", "validate", str(suite), "--no-progress", "-o", "out",
+                        "--run-id", "r", "-j", "1", "--estimator", "checking_method.py:checked"],
+                       cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(HERE.parent)), capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    (case,) = json.loads((tmp_path / "out" / "endoscope_one" / "r" / "results.json").read_text())["cases"]
+    ours, builtin = case["metrics"]["estimators"]["checked"], case["metrics"]["estimators"]["bp_ray"]
+    assert ours["n"] == 2 and ours["n_ok"] == 2, ours  # both guides' highlights (an assertion above: an exception)
+    # each white blob's brightest pixel's ray errs as the built-in BP ray (a sub-pixel peak of the smoothed frame):
+    # within 1 deg, a few px at this focal length
+    assert abs(ours["median"] - builtin["median"]) < 1.0, (ours["median"], builtin["median"])
