@@ -965,3 +965,19 @@ def test_a_frame_of_noise_under_a_rig_gets_no_ok_row(tmp_path, seed):
         "lights": [{"position_mm": [3.0, 0.0, 0.0]}, {"position_mm": [-3.0, 0.0, 0.0]}]}))
     specs = _reconstruct(tmp_path)
     assert not [(s["bp_px"], s["detail"]) for s in specs if s["status"] == "ok"]
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.tuples(st.floats(-20, 660), st.floats(-20, 500), st.floats(-5, 700)), min_size=1, max_size=6),
+       st.booleans())
+def test_the_curves_of_many_bps_are_each_bps_alone_bit_for_bit(rows, three_guides):
+    """other_guide_curves computes every candidate's curves in one batch: each candidate's points are exactly those
+    of a call with its BP alone (BPs off the frame, negative and NaN reaches included)."""
+    cam = PinholeCamera(np.array([[300.0, 0, 320], [0, 300.0, 240], [0, 0, 1]]), image_size=(640, 480))
+    guides = np.array([[-4.0, 0, 0], [4.0, 0, 0], [0, 3.0, 1.0]])[: 3 if three_guides else 2]
+    bps, reach = np.array([r[:2] for r in rows]), np.array([r[2] for r in rows])
+    reach[::4] = np.nan
+    together = other_guide_curves(cam, guides, bps, reach)
+    for k in range(len(bps)):
+        (alone,) = other_guide_curves(cam, guides, bps[k:k + 1], reach[k:k + 1])
+        assert together[k].shape == alone.shape and np.array_equal(together[k], alone)

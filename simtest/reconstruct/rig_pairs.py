@@ -37,28 +37,30 @@ DEPTH_SAMPLES = 256
 
 
 def _curve(ray, Li, Lj, depths) -> np.ndarray:
-    """Guide j's specular points (D, 3) for the BP as guide i's at each depth (NaN: inadmissible)."""
-    X = depths[:, None] * ray[None, :]
+    """Guide j's specular points (D, 3) for the BP as guide i's at each depth (NaN: inadmissible); for rays
+    (N, 3), (N, D, 3), each row the same bits as its ray's alone."""
+    rays = np.asarray(ray, np.float64)
+    X = (depths[None, :, None] * rays.reshape(-1, 1, 3)).reshape(-1, 3)
     n = unit(unit(-X, -1) + unit(Li - X, -1), -1)
-    h = -np.einsum("ij,ij->i", n, X)
+    h = -np.einsum("ij,ij->i", n, X)  # > 0: the plane faces the camera (n . ray < 0)
     Lm = Lj - 2.0 * (n @ Lj + h)[:, None] * n
     den = -np.einsum("ij,ij->i", n, Lm)
-    ok = (n @ ray < 0) & (h > 0) & (n @ Li + h > 0) & (n @ Lj + h > 0) & (den > 0)
+    ok = (h > 0) & (n @ Li + h > 0) & (n @ Lj + h > 0) & (den > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(ok[:, None], Lm * (h / den)[:, None], np.nan)
+        return np.where(ok[:, None], Lm * (h / den)[:, None], np.nan).reshape(*rays.shape[:-1], len(depths), 3)
 
 
 def _imaged_curves(camera, L: np.ndarray, ray, depths: np.ndarray):
     """Per ordered pair (i, j) of guides at different places: ``(i, j, uv)``, guide j's specular
-    points (D, 2) imaged for the BP's unit ``ray`` as guide i's at ``depths`` (NaN: inadmissible)."""
+    points (D, 2) imaged for the BP's unit ``ray`` as guide i's at ``depths`` (NaN: inadmissible); for
+    rays (N, 3), uv (N, D, 2), one call of the camera model for all."""
     for i in range(len(L)):
         for j in range(len(L)):
             if np.linalg.norm(L[i] - L[j]) > 0:
-                Xj = _curve(unit(ray, -1), L[i], L[j], depths)
-                uv = np.full((len(Xj), 2), np.nan)
-                good = np.isfinite(Xj).all(axis=1)
-                uv[good] = camera.ray_to_pixel(Xj[good]) if good.any() else uv[good]
-                yield i, j, uv
+                flat = (Xj := _curve(unit(ray, -1), L[i], L[j], depths)).reshape(-1, 3)
+                uv, good = np.full((len(flat), 2), np.nan), np.isfinite(flat).all(axis=1)
+                uv[good] = camera.ray_to_pixel(flat[good]) if good.any() else uv[good]
+                yield i, j, uv.reshape(*Xj.shape[:-1], 2)
 
 
 def _resampled(uv: np.ndarray, step: float, centre: np.ndarray, radius: float) -> np.ndarray:
@@ -100,12 +102,12 @@ def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float =
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     radius = np.broadcast_to(np.asarray(radius_px, np.float64), (len(bps),))
     depths = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
-    out = []
-    for ray, bp, rad in zip(camera.pixel_to_ray(bps) if len(bps) else (), bps, radius):
-        pts = [np.zeros((0, 2))]
-        for _, _, uv in _imaged_curves(camera, L, ray, depths) if np.isfinite(ray).all() and rad >= 0 else ():
-            pts.append(_resampled(uv, step_px, bp, rad))
-        out.append(np.concatenate(pts))
+    rays = camera.pixel_to_ray(bps) if len(bps) else np.zeros((0, 3))
+    use = np.flatnonzero(np.isfinite(rays).all(axis=1) & (radius >= 0))  # (NaN radius: none)
+    curves = [uv for _, _, uv in _imaged_curves(camera, L, rays[use], depths)] if len(use) else []
+    out = [np.zeros((0, 2)) for _ in bps]
+    for k, i in enumerate(use):  # every pair's curve of the candidate, resampled within its radius
+        out[i] = np.concatenate([np.zeros((0, 2))] + [_resampled(uv[k], step_px, bps[i], radius[i]) for uv in curves])
     return out
 
 
