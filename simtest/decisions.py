@@ -457,24 +457,25 @@ NOISE_LEVEL_MIN_SAMPLES = decision(
     "NOISE_LEVEL_MIN_SAMPLES", 500, "pixels",
     "A bin's noise from at least this many pixels (the MAD's standard error about 5 %).", basis="physics", stage=_V)
 CONFIDENCE_COEFFICIENTS = decision(
-    "CONFIDENCE_COEFFICIENTS", np.array([-11.158, 1.564, 0.403, 1.844, 0.166, 0.001]),
+    "CONFIDENCE_COEFFICIENTS", np.array([-10.338, 1.583, 0.378, 1.762, 0.068, 0.001]),
     "logistic intercept, then weights of white share, significance, white surround, residual "
     "ratio, panel share",
     "The confidence's logistic model, fitted by simtest.evaluate.calibration.fit_logistic (L2 "
-    "penalty chosen by frame-wise cross-validation) to the labels of the fits that pass the checks; "
-    "tests/test_verify.py refits them.", basis="tuned", stage=_V,
-    chosen_on=("banner-labelled",), n="176 fits that pass the checks on the 24 banner frames, 51 isolated")
+    "penalty chosen by frame-wise cross-validation) to the labels of the fits that pass the checks, each "
+    "fit on the structure whose labelled pixels hold its BP; tests/test_verify.py refits them.",
+    basis="tuned", stage=_V,
+    chosen_on=("banner-labelled",), n="176 fits that pass the checks on the 24 banner frames, 52 isolated")
 
 DEFAULT_MIN_CONFIDENCE = decision(
     "DEFAULT_MIN_CONFIDENCE", 0.15, "confidence in [0, 1]",
     "The default operating point of a colour frame without a rig of separate lights (no camera "
     "file, or one light), the kind of frame the confidence's model was fitted on: a fit that "
     "passes the checks but ranks below it is low_confidence. Of the thresholds (0 to 0.5 by "
-    "0.05) whose F1 of the fits' leave-one-frame-out confidences is within 0.01 of the largest "
-    "(0.462 at 0.3; the F1's standard error with 51 targets is about 0.04), the lowest: recall "
-    "first. There: precision 0.29 -> 0.42, recall 0.52 -> 0.50 (at 0.3: 0.53, 0.41).",
+    "0.05) whose F1 over the 98 labelled isolated highlights, from the fits' leave-one-frame-out "
+    "confidences, is within 0.01 of the largest (0.467, here; the F1's standard error is about 0.04), "
+    "the lowest: recall first.",
     basis="tuned", stage=_V, chosen_on=("banner-labelled",),
-    n="176 fits that pass the checks on the 24 banner frames, 51 isolated, leave one frame out")
+    n="176 fits that pass the checks on the 24 banner frames, 52 isolated, leave one frame out")
 MIN_CONFIDENCE_UNMODELLED = decision(
     "MIN_CONFIDENCE_UNMODELLED", 0.0, "confidence in [0, 1]",
     "The default operating point where the confidence's model does not describe the frame: every "

@@ -171,6 +171,70 @@ def test_the_committed_labelled_set_loads_with_its_stated_counts():
     for f in frames:
         assert f.image.shape[:2] == (head["tile_px"], head["tile_px"])
         assert all(0 <= s.u < head["tile_px"] and 0 <= s.v < head["tile_px"] for s in f.structures)
+    # the label map holds each structure's pixels: as many as its area, centred on its centroid (the
+    # JSON rounds to 0.01 px), its peak among them
+    rows = [r for tile in json.loads(path.read_text())["tiles"].values() for r in tile]
+    pix = [np.argwhere(f.label_px == k + 1) for f in frames for k in range(len(f.structures))]
+    assert len(pix) == len(rows)
+    for r, rc in zip(rows, pix):
+        assert len(rc) == r["area_px"]
+        assert abs(rc[:, 1].mean() - r["u"]) <= 0.0051 and abs(rc[:, 0].mean() - r["v"]) <= 0.0051
+        assert [r["v_peak"], r["u_peak"]] in rc.tolist()
+
+
+def _plateau(peak_at_left: bool):
+    """A 3 x 21 px clipped plateau (rows 9-11, columns 10-30) labelled with its peak at one end."""
+    label_px = np.zeros((40, 60), np.int32)
+    label_px[9:12, 10:31] = 1
+    s = Structure(10.0 if peak_at_left else 30.0, 10.0, 63.0, "isolated")
+    return s, label_px
+
+
+@hsettings(max_examples=40, deadline=None)
+@given(st.integers(10, 30), st.integers(9, 11), st.booleans())
+def test_a_bp_anywhere_on_a_labelled_plateau_falls_on_it(col, row, left):
+    # a clipped plateau has no one peak: its BP may sit at any of its pixels, far beyond the disc
+    # of its area about the labelled peak; the label map places it there, distances alone do not
+    s, label_px = _plateau(left)
+    bp = np.array([[col + 0.3, row - 0.4]])
+    assert match_candidates(bp, [s], label_px) == [0]
+    beyond = np.hypot(bp[0, 0] - s.u, bp[0, 1] - s.v) > s.reach_px
+    assert match_candidates(bp, [s]) == [None if beyond else 0]
+
+
+@hsettings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(0, 59), st.floats(0, 39), st.floats(1, 200)), max_size=6),
+       st.lists(st.tuples(st.floats(-5, 65), st.floats(-5, 45)), max_size=10))
+def test_off_every_labelled_pixel_the_distance_rule_decides(structs, bps):
+    labels = [Structure(u, v, a, "isolated") for u, v, a in structs]
+    label_px = np.zeros((40, 60), np.int32)
+    label_px[:3, :3] = 1 if labels else 0  # one structure's pixels in a corner
+    off = [(u, v) for u, v in bps if not (round(u) < 3 and round(v) < 3 and labels)]
+    q = np.array(off, np.float64).reshape(-1, 2)
+    assert match_candidates(q, labels, label_px) == match_candidates(q, labels)
+    assert match_candidates(q, labels, np.zeros_like(label_px)) == match_candidates(q, labels)
+
+
+def test_a_labelled_set_with_a_label_map_maps_its_indexes_tile_by_tile(tmp_path):
+    path = _labelled_set(tmp_path)
+    doc = json.loads(path.read_text())
+    labels = np.zeros((40, 80), np.uint16)
+    labels[18:23, 10:15], labels[13:18, 63:68] = 7, 3  # the rows' own indexes, not their order
+    Image.fromarray(labels).save(tmp_path / "map.png")
+    doc["header"]["labelmap"] = "map.png"
+    doc["tiles"]["r0c0"][0]["index"], doc["tiles"]["r0c1"][0]["index"] = 7, 3
+    path.write_text(json.dumps(doc))
+    frames = labelled_real_frames(path)
+    assert [int(f.label_px.max()) for f in frames] == [1, 1]
+    assert frames[0].label_px[20, 12] == 1 and frames[1].label_px[15, 25] == 1 and frames[1].label_px[15, 5] == 0
+    Image.fromarray(labels[:, :40]).save(tmp_path / "map.png")
+    with pytest.raises(ValueError, match=r"key 'labelmap'.*shape \(40, 40\)"):
+        labelled_real_frames(path)
+    Image.fromarray(labels).save(tmp_path / "map.png")
+    del doc["tiles"]["r0c1"][0]["index"]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"tiles.r0c1: .*'index'"):
+        labelled_real_frames(path)
 
 
 def test_labeller_agreement_scores_each_pass_against_the_other(tmp_path):

@@ -9,9 +9,10 @@ mostly specular reflection (:func:`simtest.render.truth.specular_pixels`): a can
 falls on ``specular`` (a glint of a glint field, a streak or a sheen: specular, not an isolated highlight),
 elsewhere on ``unlabelled``.
 
-Matching: a candidate's BP falls on the nearest structure within its reach (radius of a disc of
-its area plus ``tolerance_px``, from the centroid or, for a rendered target of several lights'
-BPs, from their hull and peak). Each target counts once per lobe, for the first (brightest)
+Matching: a candidate's BP falls on the structure whose labelled pixels it lies on, where a label map
+gives them (a clipped plateau's BP may sit anywhere on it); else on the nearest structure within its
+reach (radius of a disc of its area plus ``tolerance_px``, from the centroid or, for a rendered target
+of several lights' BPs, from their hull and peak). Each target counts once per lobe, for the first (brightest)
 candidates; more are duplicates, false positives. Precision: the fraction of candidates (or
 ``ok`` estimates) that are a target's first match; recall: the fraction of targets matched.
 
@@ -31,6 +32,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import matplotlib
 import numpy as np
 
@@ -110,8 +112,9 @@ class Structure:
         return d if self.target is None else min(d, self.target.distance_px(uv))
 
 
-def match_candidates(bps_px, structures: list[Structure]) -> list[int | None]:
-    """The structure each candidate falls on (the nearest that reaches it), or None.
+def match_candidates(bps_px, structures: list[Structure], label_px: np.ndarray | None = None) -> list[int | None]:
+    """The structure each candidate falls on (the one whose pixels hold its BP, else the nearest that
+    reaches it), or None.
 
     Parameters
     ----------
@@ -119,6 +122,9 @@ def match_candidates(bps_px, structures: list[Structure]) -> list[int | None]:
         The candidates' BPs, [u, v] px, brightest first.
     structures : list of Structure
         The frame's labels.
+    label_px : ndarray of shape (H, W), int, optional
+        Each pixel's structure as 1 + its index in ``structures`` (0: none), as
+        :attr:`LabelledFrame.label_px`; a BP's nearest pixel on a structure matches it at distance 0.
 
     Returns
     -------
@@ -137,6 +143,11 @@ def match_candidates(bps_px, structures: list[Structure]) -> list[int | None]:
             for i in np.flatnonzero(d[:, j] <= reach[j] + extent):
                 d[i, j] = s.distance_px(bps[i])
     d[d > reach[None, :]] = np.inf
+    if label_px is not None:  # on a structure's own pixels: that structure, wherever its peak
+        c, r = np.round(np.where(np.isfinite(bps), bps, -1.0)).astype(np.int64).T
+        inside = np.flatnonzero((r >= 0) & (r < label_px.shape[0]) & (c >= 0) & (c < label_px.shape[1]))
+        on = label_px[r[inside], c[inside]].astype(np.int64) - 1
+        d[inside[on >= 0], on[on >= 0]] = 0.0
     best = np.argmin(d, axis=1)
     return [int(j) if np.isfinite(d[i, j]) else None for i, j in enumerate(best)]
 
@@ -192,7 +203,8 @@ class FrameScore:
 
 
 def score_frame(name: str, specularities: list[dict], structures: list[Structure],
-                specular_px: np.ndarray | None = None) -> tuple[FrameScore, list[dict]]:
+                specular_px: np.ndarray | None = None,
+                label_px: np.ndarray | None = None) -> tuple[FrameScore, list[dict]]:
     """Score one frame's estimates against its labels.
 
     Parameters
@@ -206,6 +218,8 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
     specular_px : ndarray of shape (H, W), bool, optional
         A render's pixels whose light is mostly specular reflection: a candidate on no label within
         :data:`SPECULAR_REACH_PX` of one falls on :data:`SPECULAR_KIND`. The scores do not read it.
+    label_px : ndarray of shape (H, W), int, optional
+        The structures' pixels (:func:`match_candidates`).
 
     Returns
     -------
@@ -217,7 +231,7 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
         true positives (one a guide's lobe); it is found (recall) once.
     """
     bps = [s["bp_px"] for s in specularities]
-    hit = match_candidates(bps, structures)
+    hit = match_candidates(bps, structures, label_px)
     sc = FrameScore(name, targets=sum(s.kind == TARGET_KIND for s in structures), candidates=len(specularities))
     found: Counter = Counter()
     found_ok: Counter = Counter()
@@ -294,6 +308,9 @@ class LabelledFrame:
     specular_px : ndarray of shape (H, W), bool, or None
         A render's pixels whose light is mostly specular reflection
         (:func:`~simtest.render.truth.specular_pixels`); None: unknown (real frames).
+    label_px : ndarray of shape (H, W), int32, or None
+        Each pixel's structure as 1 + its index in ``structures`` (0: none), from a labelled set's
+        label map; None: structures placed by their points alone.
     """
 
     name: str
@@ -302,6 +319,7 @@ class LabelledFrame:
     structures: list
     lights: object = None
     specular_px: np.ndarray | None = None
+    label_px: np.ndarray | None = None
 
 
 def _tile_box(tile: str, tile_px: int) -> tuple[int, int, int, int]:
@@ -318,9 +336,11 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     Parameters
     ----------
     path : str or Path
-        JSON ``{"header": {"image": file beside the JSON, "tile_px": tile side (default 280)},
-        "tiles": {"r{r}c{c}": [{"u", "v", "u_peak", "v_peak", "area_px", "kind"}, ...]}}`` in tile
-        pixels; a structure is placed at its peak where it has one.
+        JSON ``{"header": {"image": file beside the JSON, "tile_px": tile side (default 280),
+        "labelmap": optional image-sized 16-bit PNG beside the JSON whose pixels hold their structure's
+        "index" (0: none)}, "tiles": {"r{r}c{c}": [{"u", "v", "u_peak", "v_peak", "area_px", "kind",
+        "index"}, ...]}}`` in tile pixels; a structure is placed at its peak where it has one, and on its
+        pixels where the label map gives them.
     focal_px : float
         The assumed pinhole's focal length, px (the frames are uncalibrated).
 
@@ -332,8 +352,9 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     Raises
     ------
     ValueError
-        A missing or unreadable file, key or image, a tile outside the image, or a label row with a
-        bad kind, coordinate or area, in one line naming the file, the row and the key.
+        A missing or unreadable file, key, image or label map (or one of another size than the image), a
+        tile outside the image, or a label row with a bad kind, coordinate, area or index, in one line
+        naming the file, the row and the key.
     """
     path = Path(path)
     try:
@@ -348,6 +369,7 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
     if not image_path.is_file():
         raise ValueError(f"{path}: key 'image': {image_path} not found")
     image = load_image(image_path)
+    labels = _label_map(path, head, image.shape[:2])
     f = float(focal_px)
     K = [[f, 0.0, side / 2 - 0.5], [0.0, f, side / 2 - 0.5], [0.0, 0.0, 1.0]]
     camera = PinholeCamera(K, image_size=(side, side))
@@ -369,8 +391,31 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
         if not isinstance(items, list):
             raise ValueError(f"{path}: tiles.{tile}: must be a list of structures, got {type(items).__name__}")
         structs = [_labelled_structure(path, f"tiles.{tile}[{i}]", s, side) for i, s in enumerate(items)]
-        out.append(LabelledFrame(tile, np.ascontiguousarray(image[r0:r1, c0:c1]), camera, structs))
+        out.append(LabelledFrame(tile, np.ascontiguousarray(image[r0:r1, c0:c1]), camera, structs,
+                                 label_px=None if labels is None else _tile_labels(path, tile, items, labels[r0:r1, c0:c1])))
     return out
+
+
+def _label_map(path: Path, head: dict, shape) -> np.ndarray | None:
+    """The labelled set's label map (``header.labelmap``, beside the JSON) as int64, or None without one."""
+    if head.get("labelmap") is None:
+        return None
+    file = path.parent / str(head["labelmap"])
+    labels = cv2.imread(str(file), cv2.IMREAD_UNCHANGED) if file.is_file() else None
+    if labels is None or labels.ndim != 2 or labels.shape != tuple(shape):
+        what = "not found or not an image" if labels is None else f"of shape {labels.shape}, not the image's {tuple(shape)}"
+        raise ValueError(f"{path}: key 'labelmap': {file} is {what}")
+    return labels.astype(np.int64)
+
+
+def _tile_labels(path: Path, tile: str, items: list, labels: np.ndarray) -> np.ndarray:
+    """A tile's label map as 1 + each pixel's row in ``items`` (0: none); a pixel of an index no row has: 0."""
+    index = [s.get("index") for s in items]
+    if not all(isinstance(k, int) and not isinstance(k, bool) and k > 0 for k in index) or len(set(index)) < len(index):
+        raise ValueError(f"{path}: tiles.{tile}: with a label map every row needs its own positive integer 'index'")
+    lut = np.zeros(max(int(labels.max(initial=0)), max(index, default=0)) + 1, np.int32)
+    lut[index] = np.arange(1, len(index) + 1, dtype=np.int32)
+    return lut[labels]
 
 
 def _labelled_structure(path: Path, where: str, s, side: int) -> Structure:
@@ -557,7 +602,7 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
         ests = reconstruct(fr.image, fr.camera, settings=settings, lights=fr.lights)
         if keep is not None:
             keep.append(ests)
-        sc, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures, fr.specular_px)
+        sc, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures, fr.specular_px, fr.label_px)
         scores.append(sc)
         missed = [[s.u, s.v] for j, s in enumerate(fr.structures) if s.kind == TARGET_KIND
                   and not any(r["tp_ok"] and s.distance_px(r["bp_px"]) <= s.reach_px for r in rows)]
@@ -676,7 +721,7 @@ def confidence_rows(frames: list[LabelledFrame], settings=None, *,
                             else float(fr.image.max()), camera=fr.camera, lights=fr.lights)
         ests = verified[g] if verified is not None else reconstruct(
             fr.image, fr.camera, settings=settings.replace(verify=True), lights=fr.lights)
-        _, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures)
+        _, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures, None, fr.label_px)
         # each verified estimate's row of the unverified fits (a broad lobe's, measured on a wider
         # background, has none: the unverified frame has no verdict to look for one)
         at = {tuple(e.bp_px): k for k, e in enumerate(fits)}

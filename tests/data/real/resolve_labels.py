@@ -72,6 +72,7 @@ def merge(proposals, pass1, pass2, resolution, *notes):
         tiles[tid] = out
     allk = [s["kind"] for t in tiles.values() for s in t]
     header = {
+        "labelmap": "labels/structures_labelmap.png",
         "source": "tests/data/real/hyperkvasir_banner.jpg (Hyper-Kvasir banner, CC BY 4.0, "
                   "Borgli et al. 2020): 24 frames as 280 x 280 tiles, tile id r{row}c{col} at "
                   "x = col*280, y = row*280",
