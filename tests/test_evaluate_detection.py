@@ -151,9 +151,27 @@ def test_the_command_writes_its_five_files(tmp_path):
     first = r["precision_recall"][0]
     assert first["min_confidence"] == 0.0 and first["kept"] == r["pooled"]["ok"]
     assert first["recall"] == r["pooled"]["recall_ok"]
+    assert sum(r["missed_by"].values()) == r["pooled"]["targets"] - r["pooled"]["targets_found_ok"]
+    assert "The targets no ok estimate found (pooled)" in (tmp_path / "out" / "report.md").read_text()
     res = CliRunner().invoke(app, ["evaluate", "detection", str(tmp_path / "nothere.json"),
                                    "-o", str(tmp_path / "o2")])
     assert res.exit_code == 2 and len(res.output.strip().splitlines()) == 1
+
+
+def test_a_missed_target_is_counted_by_what_the_first_candidate_on_it_got(tmp_path):
+    from simtest.evaluate.detection import evaluate_frames
+
+    path = _labelled_set(tmp_path)
+    doc = json.loads(path.read_text())
+    doc["tiles"]["r0c1"].append({"u": 5, "v": 35, "area_px": 6, "kind": "isolated"})  # flat background there
+    path.write_text(json.dumps(doc))
+    res = evaluate_frames(labelled_real_frames(path))
+    f = res["frames"][1]
+    assert [5.0, 35.0] in f["missed_targets_ok"] and f["missed_by"] == {"no candidate": 1}
+    for f in res["frames"]:  # every target is found by an ok estimate or missed, never both
+        found = {r["target"] for r in f["candidates_detail"] if r["tp_ok"]}
+        assert len(f["missed_targets_ok"]) == f["targets"] - len(found) == sum(f["missed_by"].values())
+    assert sum(res["missed_by"].values()) == res["pooled"]["targets"] - res["pooled"]["targets_found_ok"]
 
 
 def test_the_committed_labelled_set_loads_with_its_stated_counts():

@@ -250,6 +250,8 @@ def _detection_markdown(results: dict) -> str:
           + ", ".join(f"{k} {v}" for k, v in p["ok_on"].items()) + ".", "",
           "Status of every candidate: " + ", ".join(f"{k} {v}" for k, v in results["statuses"].items())
           + " (reasons in simtest.reconstruct.failures.REASONS).", "",
+          "The targets no ok estimate found (pooled), by the status of the first candidate on them: "
+          + (", ".join(f"{k} {v}" for k, v in results.get("missed_by", {}).items()) or "none") + ".", "",
           "![hits, false positives and misses](detection.png)", "", "## Confidence", "",
           "Reliability of each candidate's confidence (simtest.reconstruct.verify.confidence): per bin, "
           "the fraction of candidates that are a target's first match.", "",

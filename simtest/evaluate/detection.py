@@ -593,8 +593,10 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     Returns
     -------
     dict
-        ``{"frames": [FrameScore.as_dict() + {"candidates_detail": [...]}], "pooled": {...},
-        "settings": {...}}``.
+        ``{"frames": [FrameScore.as_dict() + {"candidates_detail": [...], "missed_targets_ok": [[u, v], ...],
+        "missed_by": {status: n}}], "pooled": {...}, "missed_by": {...}, "settings": {...}, ...}``; a missed
+        target is one no ``ok`` estimate found, counted by the status of the first candidate on it (or
+        ``"no candidate"``).
     """
     settings = settings or ReconSettings.for_frames()
     scores, frames_out = [], []
@@ -604,10 +606,13 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
             keep.append(ests)
         sc, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures, fr.specular_px, fr.label_px)
         scores.append(sc)
-        missed = [[s.u, s.v] for j, s in enumerate(fr.structures) if s.kind == TARGET_KIND
-                  and not any(r["tp_ok"] and s.distance_px(r["bp_px"]) <= s.reach_px for r in rows)]
+        missed, why = [], Counter()  # the targets no ok estimate found, by the first candidate's status on them
+        for j, s in enumerate(fr.structures):
+            if s.kind == TARGET_KIND and not any(r["tp_ok"] and r["target"] == j for r in rows):
+                missed.append([s.u, s.v])
+                why[next((r["status"] for r in rows if r["target"] == j), "no candidate")] += 1
         frames_out.append(sc.as_dict() | {"not_examined": ests.n_unexamined, "candidates_detail": rows,
-                                          "missed_targets_ok": missed})
+                                          "missed_targets_ok": missed, "missed_by": dict(why)})
     cand = [(f["name"], r) for f in frames_out for r in f["candidates_detail"] if r["confidence"] is not None]
     conf = np.array([r["confidence"] for _, r in cand], dtype=np.float64)
     tp = np.array([r["tp"] for _, r in cand], dtype=bool)
@@ -618,6 +623,7 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     pool = pooled(scores).as_dict()
     return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(),
             "statuses": dict(sorted(statuses.items())),
+            "missed_by": dict(sum((Counter(f["missed_by"]) for f in frames_out), Counter()).most_common()),
             "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[passing], tp[passing])},
             "precision_recall": precision_recall(conf[passing], tp_pass[passing], pool["targets"], target_ids=[
                 (name, r["target"]) for name, r in cand if r["status"] in PASSING]),  # a target is a frame's
