@@ -32,7 +32,6 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import matplotlib
 import numpy as np
 
@@ -400,11 +399,12 @@ def _label_map(path: Path, head: dict, shape) -> np.ndarray | None:
     """The labelled set's label map (``header.labelmap``, beside the JSON) as int64, or None without one."""
     if head.get("labelmap") is None:
         return None
-    file = path.parent / str(head["labelmap"])
-    labels = cv2.imread(str(file), cv2.IMREAD_UNCHANGED) if file.is_file() else None
-    if labels is None or labels.ndim != 2 or labels.shape != tuple(shape):
-        what = "not found or not an image" if labels is None else f"of shape {labels.shape}, not the image's {tuple(shape)}"
-        raise ValueError(f"{path}: key 'labelmap': {file} is {what}")
+    try:
+        labels = load_image(file := path.parent / str(head["labelmap"]))  # a 16-bit grey PNG as stored
+    except ValueError as exc:
+        raise ValueError(f"{path}: key 'labelmap': {exc}") from None
+    if labels.shape != tuple(shape):
+        raise ValueError(f"{path}: key 'labelmap': {file} is of shape {labels.shape}, not the image's {tuple(shape)}")
     return labels.astype(np.int64)
 
 
