@@ -50,6 +50,7 @@ def _vectors(dT, n, h, L):
 
 @given(st.integers(0, 1_000_000))
 @example(345)  # a ray that meets the plane behind the camera
+@example(17095)  # a ray 2e-6 from edge-on
 @settings(max_examples=100, deadline=None)
 def test_cos_beta_and_its_derivatives_are_those_of_the_vectors(seed):
     rng, dT, n0, h, L, e1, e2 = _case(seed)
@@ -70,8 +71,11 @@ def test_cos_beta_and_its_derivatives_are_those_of_the_vectors(seed):
     assert np.allclose(s * delta, h, rtol=1e-14)
     assert np.allclose(1.0 / ir, np.linalg.norm(L[:, None] - s * dT, axis=0), rtol=1e-12)
     # derivatives in (a, b, log h): central differences, step 1e-5 (truncation ~1e-10, rounding
-    # ~1e-11 of a cos beta of order 1): agree to 1e-6
+    # ~1e-11 of a cos beta of order 1): agree to 1e-6, on rays whose delta stays far above the
+    # step's change of it (|d delta / d(a, b)| <= 1, n being unit): a ray within 1e-3 of edge-on
+    # is stepped through delta's floor, where the difference is no derivative (seed 17095)
     step = 1e-5
+    smooth = delta > 100 * step
     for i in range(3):
         cbs = []
         for sign in (1.0, -1.0):
@@ -84,7 +88,7 @@ def test_cos_beta_and_its_derivatives_are_those_of_the_vectors(seed):
             nq, _ = la.model._normal_derivs(q, n0, e1, e2)
             cbs.append(la.model._terms(dT, nq, hh, L, rl)[0])
         fd = (cbs[0] - cbs[1]) / (2 * step)
-        assert np.allclose(dcb[i], fd, rtol=1e-6, atol=1e-6), i
+        assert np.allclose(dcb[i][smooth], fd[smooth], rtol=1e-6, atol=1e-6), i
 
 
 def test_an_edge_on_plane_gives_a_zero_inverse_range_not_a_warning():
