@@ -59,20 +59,18 @@ def median_se(m: dict | None) -> float | None:
     return float(spread / (2 * 0.9 * np.sqrt(n)))
 
 
-def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict[str, str]:
+def best_marks(stats: dict[str, dict | None]) -> dict[str, str]:
     """Which estimator's median error is lowest beyond its confidence interval.
 
     The lowest median ``a`` is *best* when for every other estimator ``b`` the difference
-    ``median_b - median_a`` exceeds t(level, min(n_a, n_b) - 1) * sqrt(se_a^2 + se_b^2)
-    (:func:`median_se`); otherwise those within it tie with ``a``. An estimator whose standard error
-    cannot be judged ties with every one.
+    ``median_b - median_a`` exceeds t(BEST_LEVEL, min(n_a, n_b) - 1) * sqrt(se_a^2 + se_b^2)
+    (:func:`median_se`, the two-sided :data:`BEST_LEVEL`); otherwise those within it tie with
+    ``a``. An estimator whose standard error cannot be judged ties with every one.
 
     Parameters
     ----------
     stats : dict of str to dict or None
         Statistics per estimator (as in a family or case of ``results.json``).
-    level : float
-        Two-sided confidence of the interval, in (0, 1).
 
     Returns
     -------
@@ -94,7 +92,7 @@ def best_marks(stats: dict[str, dict | None], level: float = BEST_LEVEL) -> dict
             group.append(b)
             continue
         dof = min(int(stats[a]["n_ok"]), int(stats[b]["n_ok"])) - 1
-        half = float(student_t.ppf(0.5 + level / 2, dof)) * float(np.hypot(se_a, se_b))
+        half = float(student_t.ppf(0.5 + BEST_LEVEL / 2, dof)) * float(np.hypot(se_a, se_b))
         if not meds[b] - meds[a] > half:
             group.append(b)
     if len(group) == len(meds):
@@ -557,7 +555,7 @@ def _claim_never_beyond_bp_ray(results):
     """Issue 39's per-highlight must-hold on curved surfaces: no recommended normal errs by more
     than the BP ray's error plus its sigma.
     """
-    cs = _counted([c for c in _unique(_rendered(results, colocated=False))
+    cs = _counted([c for c in _rendered(results, colocated=False)
                    if _base_family(c) not in ("plane", "")], "recommended_beyond_bp_ray")
     stated = sum(n for _, _, n in cs)
     if not stated:

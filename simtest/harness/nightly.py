@@ -94,11 +94,6 @@ class Change:
     tolerance: float | None
     verdict: str
 
-    @property
-    def estimator(self) -> str:
-        """The estimator part of the metric name (``*`` for per-family counts)."""
-        return self.metric.split(":")[-2]
-
 
 def _unit(metric: str) -> str:
     return "rate" if metric.endswith(("failure_rate", "false_positives_per_image")) else "deg"

@@ -73,8 +73,6 @@ class CaseResult:
         Diagnostics per row.
     exceptions : list of str
         First messages of exceptions raised inside realisations.
-    cpu_s : float
-        Seconds spent in this case's realisations (summed over workers).
     variant : str or None
         Mitsuba variant used (rendered protocol).
     e2e : list of dict
@@ -87,7 +85,6 @@ class CaseResult:
     causes: dict
     extras: dict
     exceptions: list = field(default_factory=list)
-    cpu_s: float = 0.0
     variant: str | None = None
     e2e: list = field(default_factory=list)
 
@@ -244,7 +241,7 @@ def _assemble(case: Case, estimators: tuple, chunks: list[ChunkResult]) -> CaseR
     return CaseResult(case=case, realisation=np.asarray(idx, dtype=np.int64),
                       errors={k: np.asarray(v, dtype=np.float64) for k, v in errs.items()}, causes=causes,
                       extras={k: np.asarray(v, dtype=np.float64) for k, v in extras.items()},
-                      exceptions=msgs, cpu_s=sum(ch.seconds for ch in chunks), variant=variant,
+                      exceptions=msgs, variant=variant,
                       e2e=[row.e2e for _, rows in items for row in rows if row.e2e is not None])
 
 

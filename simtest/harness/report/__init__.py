@@ -23,8 +23,8 @@ __all__ = ["SCHEMA", "SCHEMA_VERSION", "PAPER_CHECKS", "CLAIMS", "REPORT_FILES",
            "write_report_files", "provenance", "evaluate_paper_claim", "evaluate_claims", "make_run_id", "results_csv"]
 
 
-def write_report_files(results: dict, folder: str | Path, plots: bool = True,
-                       nightly: dict | None = None, history: list[dict] | None = None) -> Path:
+def write_report_files(results: dict, folder: str | Path, nightly: dict | None = None,
+                       history: list[dict] | None = None) -> Path:
     """Write the report files of a results document into ``folder``, replacing it as a set.
 
     Parameters
@@ -33,8 +33,6 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
         A ``results.json`` document.
     folder : path
         The run folder; an existing one is replaced if it holds only :data:`REPORT_FILES`.
-    plots : bool
-        Draw the figures.
     nightly : dict, optional
         The nightly gate's outcome (:func:`simtest.harness.report.document.markdown_report`).
     history : list of dict, optional
@@ -52,7 +50,7 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
     """
     folder = Path(folder)
     # the figures and the text first (nothing written yet if one of them fails)
-    pngs = {name: figure_png(fig) for name, fig in make_figures(results, history).items()} if plots else {}
+    pngs = {name: figure_png(fig) for name, fig in make_figures(results, history).items()}
     md = markdown_report(results, sorted(pngs), nightly=nightly, history=history)
     html = html_report(md, pngs, title=f"simtest report: {results['suite']['name']}")
 
@@ -70,8 +68,7 @@ def write_report_files(results: dict, folder: str | Path, plots: bool = True,
     return folder
 
 
-def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None, plots: bool = True,
-                 nightly: dict | None = None, history: list[dict] | None = None) -> Path:
+def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None) -> Path:
     """Write ``results.json``, ``results.csv``, ``report.md``, ``report.html`` and figures.
 
     Parameters
@@ -82,10 +79,6 @@ def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None
         Reports root; the files go to ``<out_dir>/<suite name>/<run id>/``.
     run_id : str or None
         Default :func:`make_run_id` (``<UTC time>-local``, ignored by git).
-    plots : bool
-        Draw the figures (matplotlib, Agg).
-    nightly, history : optional
-        See :func:`write_report_files`.
 
     Returns
     -------
@@ -94,4 +87,4 @@ def write_report(run, out_dir: str | Path = "reports", run_id: str | None = None
     """
     run_id = run_id or make_run_id()
     folder = Path(out_dir) / run.suite.name / run_id
-    return write_report_files(build_results(run, run_id), folder, plots=plots, nightly=nightly, history=history)
+    return write_report_files(build_results(run, run_id), folder)

@@ -126,21 +126,15 @@ def open_parameters(suite) -> dict:
     return out
 
 
-def make_run_id(suffix: str = "local") -> str:
+def make_run_id() -> str:
     """A run id from the current UTC time.
-
-    Parameters
-    ----------
-    suffix : str
-        Appended after a dash (``-local`` runs are ignored by git); empty for none.
 
     Returns
     -------
     str
-        ``YYYYmmddTHHMMSSZ-<suffix>``.
+        ``YYYYmmddTHHMMSSZ-local`` (``-local`` runs are ignored by git).
     """
-    now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    return f"{now}-{suffix}" if suffix else now
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ") + "-local"
 
 
 def relative_to_repo(path: str) -> str:
