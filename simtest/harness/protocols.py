@@ -334,11 +334,7 @@ class RenderedRunner:
         self.variant = None
 
     def run(self, seedseq: np.random.SeedSequence) -> list[dict]:
-        """Render, detect, reconstruct and score one realisation.
-
-        Each in-frame ground-truth highlight is matched to the nearest detected BP within
-        ``match_px`` (pixel distance in (u, v)); an unmatched highlight fails every estimator
-        with ``"not_detected"``.
+        """Render, detect, reconstruct and score one realisation (matched as the module docstring says).
 
         Parameters
         ----------

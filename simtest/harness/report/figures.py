@@ -19,7 +19,7 @@ matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 from matplotlib.ticker import FixedLocator, NullFormatter  # noqa: E402
 
-from simtest.harness.claims import BEST_LEVEL, MIN_N_INTERVAL, best_marks  # noqa: E402
+from simtest.harness.claims import BEST_LEVEL, MIN_N_INTERVAL, _unique, best_marks  # noqa: E402
 from simtest.harness.report.numbers import fmt  # noqa: E402
 
 __all__ = ["make_figures", "figure_png", "style", "trend_figure", "takeaways", "x_scale", "MIN_N_INTERVAL"]
@@ -152,12 +152,6 @@ def _log_y(ax) -> None:
     ax.grid(True, which="major", alpha=0.3)
 
 
-def _series_style(k: int, n_series: int) -> dict:
-    """Size (9 down to 4 points), alternating fill and transparency of the k-th series."""
-    ms = 9.0 - 5.0 * k / max(n_series - 1, 1)
-    return {"ms": ms, "filled": k % 2 == 0, "alpha": 0.85}
-
-
 def _sweep_x(sw: dict, sc: list[dict]) -> np.ndarray:
     return np.array([float(c["x"]) * float(sw["display_scale"]) for c in sc])
 
@@ -178,15 +172,15 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
     _set_x_scale(ax, x)
     for k, e in enumerate(ests):
         col, mk = style(e, ests)
-        st = _series_style(k, len(ests))
-        mfc = col if st["filled"] else "white"
+        # size 9 down to 4 points, fill alternating
+        size, mfc = 9.0 - 5.0 * k / max(len(ests) - 1, 1), col if k % 2 == 0 else "white"
         ms = [c["metrics"]["estimators"].get(e, {}) for c in sc]
         med, lo, hi = (np.array([_val(m, k) for m in ms]) for k in ("median", "p5", "p95"))
         n_ok = np.array([int(m.get("n_ok", 0) or 0) if m else 0 for m in ms])
         med_f, lo_f, hi_f = (np.maximum(v, FLOOR_DEG) for v in (med, lo, hi))
         ok = np.isfinite(med)
-        (line,) = ax.plot(x[ok], med_f[ok], mk + "-", color=col, ms=st["ms"], lw=1, mfc=mfc,
-                          alpha=st["alpha"], label=f"{e} ({_n_text(n_ok[ok])})", zorder=3 + k)
+        (line,) = ax.plot(x[ok], med_f[ok], mk + "-", color=col, ms=size, lw=1, mfc=mfc,
+                          alpha=0.85, label=f"{e} ({_n_text(n_ok[ok])})", zorder=3 + k)
         line.set_gid(f"series:{e}")
         bar = ok & (n_ok >= MIN_N_INTERVAL)
         if bar.any():
@@ -196,8 +190,8 @@ def _curves(sw: dict, sc: list[dict], ests: list[str]):
         if axf is not None:
             n_all = np.array([int(m.get("n", 0) or 0) if m else 0 for m in ms])
             has = n_all > 0
-            (fl,) = axf.plot(x[has], 100 * fails[e][has], mk, color=col, ms=st["ms"] * 0.7,
-                             mfc=mfc, alpha=st["alpha"], ls="none", zorder=3 + k)
+            (fl,) = axf.plot(x[has], 100 * fails[e][has], mk, color=col, ms=size * 0.7,
+                             mfc=mfc, alpha=0.85, ls="none", zorder=3 + k)
             fl.set_gid(f"failures:{e}")
     _log_y(ax)
     ax.set_ylabel(f"normal error (deg)\nmedian, bar p5 to p95\n(bar where n >= {MIN_N_INTERVAL})")
@@ -259,8 +253,7 @@ def _rho_cases(results: dict) -> list[dict]:
     cs = [c for c in results["cases"] if c["protocol"] == "rendered"
           and c["metrics"]["diagnostics"].get("predicted_gap") is not None
           and not c.get("family", "").startswith("plane")]
-    first: dict = {}
-    cases = [first.setdefault(c["key"], c) for c in cs if c["key"] not in first]
+    cases = _unique(cs)
     measured = any(np.isfinite(_val(c["metrics"]["diagnostics"], "eigenvalue_gap"))
                    or any(np.isfinite(_val(c["metrics"]["estimators"].get(e, {}), "mean"))
                           for e in RHO_ESTIMATOR_MARKERS) for c in cases)

@@ -62,7 +62,7 @@ def case_family(case) -> tuple[str, bool]:
     Parameters
     ----------
     case : simtest.harness.suite.Case
-        A case of any protocol.
+        A ``paper`` or ``rendered`` case.
 
     Returns
     -------
@@ -78,8 +78,6 @@ def case_family(case) -> tuple[str, bool]:
     """
     if case.protocol == "paper":
         return "paper protocol", False
-    if case.protocol != "rendered":
-        return str(case.scene_name or case.protocol), False
     p = case.params
     family = next((name for key, name in _MESH_KEYS.items() if p.get(key) is not None), None)
     eps, rig = p.get("light.epsilon_mm"), p.get("light.rig")
