@@ -154,9 +154,7 @@ class PaperRunner:
 
     def __init__(self, case, estimators, external=()) -> None:
         self.settings = case.recon
-        self.isovalues = case.recon.isovalues
-        self.params = case.paper
-        self.sim = PaperSimulator(self.params)
+        self.sim = PaperSimulator(case.paper)
         self.estimators = tuple(estimators)
         self.external = dict(external)
         self.builtin = tuple(e for e in self.estimators if e not in self.external)
@@ -183,7 +181,7 @@ class PaperRunner:
             ``(row0, row1, col0, col1)``, half-open; the whole image if nothing is above the threshold.
         """
         h, w = clean.shape
-        mask = clean > 0.5 * min(self.isovalues) * float(clean.max())
+        mask = clean > 0.5 * min(self.settings.isovalues) * float(clean.max())
         rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
         if rows.size == 0:
             return (0, h, 0, w)

@@ -63,12 +63,10 @@ from simtest.resources import bundled
 from simtest.scene import SceneError, bundled_scene_path, load_scene, with_overrides
 from simtest.simulate.paper import PaperParams
 
-__all__ = ["SuiteError", "Case", "Sweep", "Suite", "PROTOCOLS", "ESTIMATOR_NAMES", "RECON_KEYS",
+__all__ = ["SuiteError", "Case", "Sweep", "Suite", "ESTIMATOR_NAMES", "RECON_KEYS",
            "load_suite", "suite_from_dict", "suites_dir", "bundled_suite_names", "resolve_suite_path",
            "stable_hash", "realisation_seed", "Scoring", "MeshPose", "SceneSetting",
            "harness_recon_settings", "MAX_TOTAL_REALISATIONS"]
-
-PROTOCOLS = ("paper", "rendered")
 
 #: The estimators a suite that lists none scores side by side (:mod:`simtest.reconstruct.registry`).
 ESTIMATOR_NAMES = tuple(name for name in registry.names() if registry.get(name).default)
