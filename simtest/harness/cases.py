@@ -243,8 +243,8 @@ class Case:
         it seeds the realisations, so the same setting gets the same numbers in any suite.
     id : str
         ``<sweep>@<x>``: unique in the suite.
-    suite, sweep : str
-        Names of the suite and sweep that hold it.
+    sweep : str
+        Name of the sweep that holds it.
     protocol : {"paper", "rendered"}
     scene : str or None
         Rendered: the base scene file (absolute path).
@@ -266,7 +266,6 @@ class Case:
 
     key: str
     id: str
-    suite: str
     sweep: str
     protocol: str
     scene: str | None

@@ -494,7 +494,7 @@ def suite_from_dict(raw: Mapping[str, Any], source: str = "<dict>", sha256: str 
             else:
                 params = _resolve_rendered(scene_path, merged, source, cwhere)
             key = _case_key(sproto, scene_name, params)
-            cases.append(Case(key=key, id=f"{sname}@{x:g}", suite=name, sweep=sname, protocol=sproto,
+            cases.append(Case(key=key, id=f"{sname}@{x:g}", sweep=sname, protocol=sproto,
                               scene=None if scene_path is None else str(scene_path),
                               scene_name=scene_name, params=params, x=x, realisations=sreal,
                               **_typed(sproto, params, source, cwhere)))
