@@ -474,7 +474,7 @@ def load_baseline(path: str | Path) -> dict:
     return d
 
 
-def update_baseline(path: str | Path, runs: list[dict], policy: dict | None = None) -> Path:
+def update_baseline(path: str | Path, runs: list[dict]) -> Path:
     """Write (or replace) the section of the runs' suite in the baseline file, atomically.
 
     Parameters
@@ -483,9 +483,7 @@ def update_baseline(path: str | Path, runs: list[dict], policy: dict | None = No
         The baseline file (created if missing; other suites' sections are kept; a file of an
         older schema is replaced).
     runs : list of dict
-        As for :func:`baseline_section`.
-    policy : dict, optional
-        Default :data:`POLICY`.
+        As for :func:`baseline_section` (with the default :data:`POLICY`).
 
     Returns
     -------
@@ -497,7 +495,7 @@ def update_baseline(path: str | Path, runs: list[dict], policy: dict | None = No
         d = load_baseline(path)
     except ValueError:
         d = {"schema": BASELINE_SCHEMA, "schema_version": BASELINE_VERSION, "suites": {}}
-    d["suites"][runs[0]["suite"]["name"]] = baseline_section(runs, policy)
+    d["suites"][runs[0]["suite"]["name"]] = baseline_section(runs)
     return atomic_write_json(path, d, sort_keys=True, allow_nan=False)
 
 
@@ -553,15 +551,13 @@ def append_history(path: str | Path, line: dict) -> Path:
     return path
 
 
-def read_history(path: str | Path, limit: int = 60) -> list[dict]:
-    """The last ``limit`` lines of a history file (oldest first); unreadable lines are skipped.
+def read_history(path: str | Path) -> list[dict]:
+    """The last 60 lines of a history file (oldest first); unreadable lines are skipped.
 
     Parameters
     ----------
     path : str or Path
         ``history.jsonl``; a missing file gives an empty list.
-    limit : int
-        Lines kept.
 
     Returns
     -------
@@ -578,7 +574,7 @@ def read_history(path: str | Path, limit: int = 60) -> list[dict]:
             continue
         if isinstance(d, dict):
             out.append(d)
-    return out[-limit:]
+    return out[-60:]
 
 
 def changes_table(changes: list[Change], title: str, show_all: bool = False):
