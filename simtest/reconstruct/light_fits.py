@@ -138,7 +138,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         # the ROI the fitted lobe spans, where the detection's region cut it or drowned it
         refit = _photometric(img, gray, lobe_roi, est, camera, rig, response, colour, saturation_level, pkw)
         if refit.ok:
-            pf = _la.plane._note(refit, f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
+            pf = refit.noted(f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
     # the other guide's highlight seen where the fit's plane puts it: the image tells the guides apart
     paired = bool(pair_starts) and _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)
     ran_off = pf.status in _RAN_OFF
@@ -149,15 +149,15 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
             alt = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
                                dict(pkw, pair_starts=tuple(pair_starts)))
             if alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
-                pf = _la.plane._note(alt, "refitted from the depth its pair with another guide's highlight gives")
+                pf = alt.noted("refitted from the depth its pair with another guide's highlight gives")
             elif not ran_off and (span := _pair_roi(big, est.bp_px, camera, rig, pair_starts, img.shape)) is not None:
                 # one guide's lobe alone leaves which guide lit it to the fit: the swapped guide at another
                 # depth images nearly the same lobe. The other guide's highlight, in the ROI, tells them apart
                 joint = _photometric(img, gray, span, est, camera, rig, response, colour, saturation_level,
                                      dict(pkw, pair_starts=tuple(pair_starts)))
                 if joint.ok and _fits_the_pair(joint, est.bp_px, camera, rig, pair_starts):
-                    pf = _la.plane._note(joint, f"refitted on the ROI that holds its pair with another guide's "
-                                                f"highlight ({span.shape[1]} x {span.shape[0]} px)")
+                    pf = joint.noted(f"refitted on the ROI that holds its pair with another guide's "
+                                     f"highlight ({span.shape[1]} x {span.shape[0]} px)")
         # the plane (a depth-less fit's normal: at the pair's depth) off the partner's lobe, farther than a
         # BP's wander off its specular point: the lobe's size, its isophote's (both guides' lobes on one
         # plane image alike) or the detection's where none closed
@@ -325,16 +325,14 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
         # the body colours' depth above the ceiling: the least-fluctuation weights' fit if ok
         lf = depth_within_ceiling(fitted("least_fluctuation"))
         if lf.ok and lf.projection == "least_fluctuation":
-            why = "the body colours' depth is above the ceiling"
-            pf = dataclasses.replace(lf, detail=f"{lf.detail}; {why}" if lf.detail else why)
+            pf = lf.noted("the body colours' depth is above the ceiling")
     if colour and ((not pf.ok and pf.projection == "least_fluctuation")
                    or (pf.projection == "body_colours" and pf.curvature_shift_deg is None
                        and pf.status in ("depth_not_observable", "not_converged"))):
         # the darkest channel's fit stands in for a projection's fit without its depth
         # (docs/decisions/light-aware-recommendation.md)
         why = f"the {pf.projection.replace('_', ' ')} projection's fit: {pf.status}"
-        chan = depth_within_ceiling(fitted("darkest_channel"))
-        pf = dataclasses.replace(chan, detail=f"{chan.detail}; {why}" if chan.detail else why)
+        pf = depth_within_ceiling(fitted("darkest_channel")).noted(why)
     return pf
 
 
@@ -420,8 +418,8 @@ def _curved_fits(out: dict, gray, shape, est, camera, rig, *, saturation_level, 
             wide = _roi_union(near, *(Roi.around(uv, half, shape) for uv in partners))
             again = _curved_fit(name, fit, gray, wide, est, camera, rig, saturation_level, nominal_depth_mm, sigma)
             if again.ok:
-                out[name] = _la.plane._note(again, f"fitted on the ROI that holds the {len(partners)} other "
-                                                   f"candidate(s) beside it ({wide.shape[1]} x {wide.shape[0]} px)")
+                out[name] = again.noted(f"fitted on the ROI that holds the {len(partners)} other "
+                                        f"candidate(s) beside it ({wide.shape[1]} x {wide.shape[0]} px)")
     for name, r in out.items():
         out[name] = _released(r, ray, rig, nominal_depth_mm, paired and name == "photometric_fit")
 

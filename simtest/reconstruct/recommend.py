@@ -198,9 +198,8 @@ def with_guide_spread(r: LightAwareEstimate, ray, depth_mm: float, rig: LightRig
             or not rig.has_separate_lights or r.guide_spread_deg is not None):
         return r
     spread = guide_spread_deg(ray, r.normal, depth_mm, rig)
-    why = _SPREAD_NOTE.format(spread)
     return dataclasses.replace(r, normal_sigma_deg=float(math.hypot(r.normal_sigma_deg, spread)),
-                               guide_spread_deg=spread, detail=f"{r.detail}; {why}" if r.detail else why)
+                               guide_spread_deg=spread).noted(_SPREAD_NOTE.format(spread))
 
 
 def without_guide_spread(r: LightAwareEstimate, how: str) -> LightAwareEstimate:

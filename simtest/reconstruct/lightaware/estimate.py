@@ -146,6 +146,10 @@ class LightAwareEstimate:
         return replace(self, status=status, detail=detail, depth_mm=None, depth_sigma_mm=None,
                        distance_mm=None, light_depths_mm=None)
 
+    def noted(self, why: str) -> "LightAwareEstimate":
+        """This estimate with ``why`` appended to its detail."""
+        return replace(self, detail=f"{self.detail}; {why}" if self.detail else why)
+
     @property
     def has_normal(self) -> bool:
         """True when a normal is given (status ``ok`` or ``depth_not_observable``)."""

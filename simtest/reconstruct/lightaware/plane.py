@@ -214,11 +214,6 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
     return _fit_lobes(values, origin_uv, bp_uv, camera, rig, s)
 
 
-def _note(est: LightAwareEstimate, why: str) -> LightAwareEstimate:
-    """``est`` with ``why`` appended to its detail."""
-    return replace(est, detail=f"{est.detail}; {why}" if est.detail else why)
-
-
 def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
     """``photometric_fit`` with ``n_start_depths`` None: the two-channel choice, the retry from further
     starts, and the projections' fallbacks."""
@@ -247,10 +242,10 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
         # no depth on the body colours (a misfit stands): the least-fluctuation fit where it is ok
         lf = _fit_projections(*fit, replace(s, projection="least_fluctuation"))
         if lf.ok and lf.projection == "least_fluctuation":
-            return _note(lf, f"the body colours' fit is not ok ({best.status}: {best.detail})")
+            return lf.noted(f"the body colours' fit is not ok ({best.status}: {best.detail})")
     if rgb and s.projection == "auto" and best.status != "ok" and best.projection == "least_fluctuation":
         chan = _fit_projections(*fit, replace(s, projection="darkest_channel"))
-        return _note(chan, f"the least-fluctuation projection's fit is not ok ({best.status}: {best.detail})")
+        return chan.noted(f"the least-fluctuation projection's fit is not ok ({best.status}: {best.detail})")
     return best
 
 
@@ -273,7 +268,7 @@ def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
         return _fit_plane(*fit, s)
     pho = _fit_plane(*fit, replace(s, lobe="phong"))
     if _fits(pho):
-        return _note(pho, "phong lobe fits")
+        return pho.noted("phong lobe fits")
     start = (dict(start_normal=pho.normal, start_roughness=pho.roughness, start_distance_mm=pho.fitted_distance_mm)
              if pho.has_normal else dict(start_normal=s.start_normal, start_roughness=s.start_roughness))
     ggx = _fit_plane(*fit, replace(s, lobe="ggx", **start))
@@ -318,7 +313,7 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
                   roughness=rough_hat, detail="" if conv else msg, n_linear=m.design.shape[1] if m.general else 4,
                   post=verdict.post)
     if colour_detail:
-        est = _note(est, colour_detail)
+        est = est.noted(colour_detail)
     est = replace(est, lobe=s.lobe, n_residuals=int(len(m.yn)), projection=how, fitted_distance_mm=h_hat)
     if lower is not None and est.status in ("ok", "depth_not_observable"):
         # the shape check on the darkest channel: a curved patch is curved in every channel, and
@@ -407,8 +402,8 @@ def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate, dar
         return plain  # (no more precise: nothing gained)
     agree, apart = _hausman(both, plain)
     if agree:
-        return _note(both, "pixels clipped in one channel valued from the other two (the fit without them "
-                           f"agrees: {apart.format('within')})")
+        return both.noted("pixels clipped in one channel valued from the other two (the fit without them "
+                          f"agrees: {apart.format('within')})")
     chan = None if darkest is None else darkest()
     if chan is None or not chan.ok:
         return plain
@@ -416,8 +411,8 @@ def _two_channel_choice(both: LightAwareEstimate, plain: LightAwareEstimate, dar
     sure = None not in (chan.normal_sigma_deg, chan.depth_sigma_mm, chan.depth_mm)
     for e, how in ((both, "with"), (plain, "without")):  # (both the more precise)
         if sure and _hausman(e, chan)[0]:
-            return _note(e, f"{why}; the darkest channel's fit agrees with the one {how} them")
-    return _note(chan, why)
+            return e.noted(f"{why}; the darkest channel's fit agrees with the one {how} them")
+    return chan.noted(why)
 
 
 def _hausman(eff: LightAwareEstimate, other: LightAwareEstimate) -> tuple[bool, str]:
@@ -451,4 +446,4 @@ def _choose_lobe(pho: LightAwareEstimate, *others: LightAwareEstimate) -> LightA
     rms = [f"{e.lobe}'s {e.residual_rms:.4g}" for e in (pho, *others) if e is not best and e.residual_rms is not None]
     why = (f"{best.lobe} lobe: residual RMS {best.residual_rms:.4g} against {', '.join(rms)}"
            if rms and best.residual_rms is not None else f"{best.lobe} lobe")
-    return _note(best, why)
+    return best.noted(why)

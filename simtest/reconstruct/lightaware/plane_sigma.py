@@ -131,8 +131,7 @@ class PlaneVerdict:
             return est.without_depth("plane_misfit", curved)
         note = (f"{curved}, which moves the normal {shift[0]:.2g} deg, within its sigma: "
                 "kept, its sigmas grown by the shift")
-        kept = replace(kept, normal_sigma_deg=sig + shift[0], curvature_shift_deg=shift[0],
-                       detail=f"{kept.detail}; {note}" if kept.detail else note)
+        kept = replace(kept, normal_sigma_deg=sig + shift[0], curvature_shift_deg=shift[0]).noted(note)
         if kept.depth_sigma_mm is not None and kept.depth_mm:
             return _with_depth_sigma(kept, kept.depth_sigma_mm + shift[1] * abs(kept.depth_mm),
                                      lambda rel: f"{kept.detail}; relative depth sigma {rel:.3g} > "
