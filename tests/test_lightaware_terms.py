@@ -57,7 +57,7 @@ def test_cos_beta_and_its_derivatives_are_those_of_the_vectors(seed):
     p = rng.standard_normal(2) * 0.05
     n, dns = la.model._normal_derivs(p, n0, e1, e2)
     rl = la.model._ray_light(L, dT)
-    cb, delta, s, sl, ir, c, dcb = la.model._terms(dT, n, h, L, rl, None, dns)
+    cb, delta, s, sl, ir, c, dcb = la.model._terms(dT, n, h, L, rl, dns=dns)
     l, v = _vectors(dT, n, h, L)
     off = np.linalg.norm(np.cross(L, dT.T), axis=1) > 1e-3 * np.linalg.norm(L - (h / delta)[:, None] * dT.T, axis=1)
     want = 2.0 * (n @ l) * (n @ v) - np.einsum("in,in->n", l, v)

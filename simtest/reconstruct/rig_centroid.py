@@ -174,8 +174,8 @@ def _obeys_reflection(est, camera, rig: LightRig):
             continue
         off = reflection_offset_deg(est.bp_px, camera, rig, r.normal, r.distance_mm)
         if off > TOL.reflection_rounding_deg:  # (NaN: its plane does not meet the BP's ray; not ok then)
-            new[name] = dataclasses.replace(r, normal_sigma_deg=r.normal_sigma_deg + off, detail=(
-                f"{r.detail}; " if r.detail else "") + f"its normal {off:.2g} deg off the law of reflection at the BP")
+            new[name] = dataclasses.replace(r, normal_sigma_deg=r.normal_sigma_deg + off).noted(
+                f"its normal {off:.2g} deg off the law of reflection at the BP")
     return dataclasses.replace(est, light_aware={**fits, **new}) if new else est
 
 

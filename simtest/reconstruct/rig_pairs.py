@@ -34,6 +34,7 @@ __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "othe
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
 DEPTH_SAMPLES = 256
+_DEPTHS = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
 
 
 def _curve(ray, Li, Lj, depths) -> np.ndarray:
@@ -101,10 +102,9 @@ def other_guide_curves(camera, positions_mm, bps_uv, radius_px, step_px: float =
     L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     radius = np.broadcast_to(np.asarray(radius_px, np.float64), (len(bps),))
-    depths = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
     rays = camera.pixel_to_ray(bps) if len(bps) else np.zeros((0, 3))
     use = np.flatnonzero(np.isfinite(rays).all(axis=1) & (radius >= 0))  # (NaN radius: none)
-    curves = [uv for _, _, uv in _imaged_curves(camera, L, rays[use], depths)] if len(use) else []
+    curves = [uv for _, _, uv in _imaged_curves(camera, L, rays[use], _DEPTHS)] if len(use) else []
     out = [np.zeros((0, 2)) for _ in bps]
     for k, i in enumerate(use):  # every pair's curve of the candidate, resampled within its radius
         out[i] = np.concatenate([np.zeros((0, 2))] + [_resampled(uv[k], step_px, bps[i], radius[i]) for uv in curves])
@@ -197,14 +197,10 @@ def rig_twins(camera, positions_mm, bps_uv, pool, wander_px, which) -> np.ndarra
 
 
 def _placed(curve_uv: np.ndarray, points_uv: np.ndarray, bp_uv, tol_px) -> np.ndarray:
-    """Which points (K,) lie within ``tol_px`` of a BP's curve where that tells: the curve starts beside the BP,
-    so a tolerance as large as a point's distance from the BP admits it from any direction and confirms nothing."""
-    return (_gaps_to(curve_uv, points_uv) <= tol_px) & (tol_px < np.hypot(*(points_uv - np.asarray(bp_uv)).T))
-
-
-def _gaps_to(curve_uv: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
-    """Each point's distance (K,) to the nearest of a curve's samples (M, 2), px (a k-d tree of the samples)."""
-    return require("scipy.spatial").cKDTree(curve_uv).query(points_uv)[0]
+    """Which points (K,) lie within ``tol_px`` of a BP's curve (M, 2) where that tells: the curve starts beside the
+    BP, so a tolerance as large as a point's distance from the BP admits it from any direction and confirms nothing."""
+    gaps = require("scipy.spatial").cKDTree(curve_uv).query(points_uv)[0]  # to the curve's nearest sample, px
+    return (gaps <= tol_px) & (tol_px < np.hypot(*(points_uv - np.asarray(bp_uv)).T))
 
 
 def estimate_wander_px(est) -> float:
@@ -264,18 +260,17 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
     L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     partners = np.asarray(partners_uv, np.float64).reshape(-1, 2)
-    depths = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
     out: list = []
     rays = camera.pixel_to_ray(bps) if len(bps) else np.zeros((0, 3))
     for ray, bp in zip(rays, bps):
         near = partners[np.linalg.norm(partners - bp, axis=1) > PAIR_TOL_PX]
         found: dict[int, set[tuple[int, int, float]]] = {}  # partner -> (i, j, depth)
-        for i, j, uv in _imaged_curves(camera, L, ray, depths) if len(near) and np.isfinite(ray).all() else ():
+        for i, j, uv in _imaged_curves(camera, L, ray, _DEPTHS) if len(near) and np.isfinite(ray).all() else ():
             # each partner's nearest point on the polyline's segments (consecutive admissible
             # samples), its depth interpolated geometrically along the segment
             a, ab = uv[:-1], np.diff(uv, axis=0)
             seg = np.isfinite(ab).all(axis=1)
-            a, ab, d0, d1 = a[seg], ab[seg], depths[:-1][seg], depths[1:][seg]
+            a, ab, d0, d1 = a[seg], ab[seg], _DEPTHS[:-1][seg], _DEPTHS[1:][seg]
             if not len(a):
                 continue
             # (a partner beyond the tolerance of the curve's bounding box is beyond it of the curve)

@@ -86,13 +86,13 @@ def _ray_light(L, dT):
     return Ld, np.maximum((LL if np.ndim(LL) == 0 else LL[:, None]) - Ld * Ld, 0.0)
 
 
-def _terms(dT, n, h, L, rl, P=None, dns=None, ds=None):
+def _terms(dT, n, h, L, rl, dns=None, ds=None):
     """cos beta of one light on the plane (n, h) along unit rays ``dT`` (3, N), and its derivatives.
 
     ``rl = (Ld, K2)`` of :func:`_ray_light`. Returns ``(cb, delta, s, sl, ir, c, dcb)``: ``delta = -d . n``,
     ``s = |X| = h / delta``, ``sl = s - Ld``, ``ir = 1 / |L - X|``, ``c = n . L + h``,
     ``cb = (2 c delta - sl) ir`` and, given the normal's derivatives ``dns``, ``dcb`` (3, N) in
-    (a, b, log h) (else None); ``P = dns @ dT`` and ``ds = (delta, s)`` may be passed if at hand.
+    (a, b, log h) (else None); ``ds = (delta, s)`` may be passed if at hand.
     """
     Ld, K2 = rl
     delta = np.maximum((-n) @ dT, 1e-9) if ds is None else ds[0]
@@ -104,8 +104,7 @@ def _terms(dT, n, h, L, rl, P=None, dns=None, ds=None):
     cb = (2.0 * c * delta - sl) * ir
     if dns is None:
         return cb, delta, s, sl, ir, c, None
-    if P is None:
-        P = np.array(dns) @ dT
+    P = np.array(dns) @ dT
     qs = (1.0 + cb * sl * ir) * s
     t = 2.0 * delta * ir
     u = (2.0 * c + qs / delta) * ir
