@@ -74,13 +74,6 @@ def _twins(estimates, members: list[int]) -> bool:
     return True
 
 
-def _fit_roi(estimates, members: list[int], shape, roi_scale: float) -> Roi:
-    """The ROI a group's patch fit reads: a square of the first member's curved-fit size (``roi_scale`` times its
-    ROI's larger side) about each member's BP."""
-    half = _reach(estimates[members[0]], roi_scale)
-    return _roi_union(*(Roi.around(estimates[m].bp_px, half, shape) for m in members))
-
-
 def _groups(estimates, places: int, shape, roi_scale: float) -> list[tuple[list[int], Roi]]:
     """The groups of rejected candidates the rule fits (module docstring), each the brightest member first, and the
     ROI its fit reads."""
@@ -93,8 +86,9 @@ def _groups(estimates, places: int, shape, roi_scale: float) -> list[tuple[list[
                          key=lambda k: -float(estimates[k].bp_intensity))
         closed = all(_near(estimates[a], estimates[b]) for a in members for b in members if a != b)
         # a smooth patch shows one lobe per place of the lights: any other candidate's peak in the ROI the fit
-        # would read says it is not one
-        at = _fit_roi(estimates, members, shape, roi_scale)
+        # would read (a square of the first member's curved-fit size about each member's BP) says it is not one
+        half = _reach(estimates[members[0]], roi_scale)
+        at = _roi_union(*(Roi.around(estimates[m].bp_px, half, shape) for m in members))
         alone = not _peaks_in([e.bp_px for k, e in enumerate(estimates) if k not in members], at)
         fused = len(members) == 1 and estimates[i].status != "cluster"  # (a lone cluster: its peak no candidate)
         if closed and alone and len(members) <= places and (fused or len(members) > 1 and _twins(estimates, members)):

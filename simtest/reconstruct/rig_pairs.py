@@ -118,9 +118,8 @@ def encloses_only_partners(camera, positions_mm, bp_uv, polygon_uv, points_uv, e
 
     Parameters
     ----------
-    camera : CameraModel
-    positions_mm : array_like of shape (G, 3)
-        The guides' positions, camera frame, mm.
+    camera, positions_mm
+        As in :func:`other_guide_curves`.
     bp_uv : array_like of shape (2,)
         The isophote's BP (u, v), px.
     polygon_uv : ndarray of shape (P, 2)
@@ -163,9 +162,8 @@ def rig_twins(camera, positions_mm, bps_uv, pool, wander_px, which) -> np.ndarra
 
     Parameters
     ----------
-    camera : CameraModel
-    positions_mm : array_like of shape (G, 3)
-        The guides' positions, camera frame, mm.
+    camera, positions_mm
+        As in :func:`other_guide_curves`.
     bps_uv : array_like of shape (N, 2)
         The BPs (u, v), px.
     pool : ndarray of bool, shape (N,)
@@ -313,10 +311,8 @@ def pair_plane(camera, positions_mm, a_uv, b_uv):
 
     Parameters
     ----------
-    camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K or a camera model.
-    positions_mm : array_like of shape (G, 3)
-        The guides' positions, camera frame, mm.
+    camera, positions_mm
+        As in :func:`pair_starts`.
     a_uv, b_uv : array_like of shape (2,)
         The two highlights' specular points (u, v), px.
 
@@ -375,8 +371,8 @@ def pair_partners(camera, rig, bp_uv, starts) -> np.ndarray:
 
     Parameters
     ----------
-    camera : array_like of shape (3, 3) or CameraModel
-        Intrinsics K, or a model with ``pixel_to_ray`` and ``ray_to_pixel``.
+    camera
+        As in :func:`pair_starts`.
     rig : LightRig
         The scope's lights, camera frame, mm.
     bp_uv : array_like of shape (2,)

@@ -249,11 +249,6 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
     return best
 
 
-def _fits(est: LightAwareEstimate) -> bool:
-    """Whether a lobe's fit needs no other lobe: passing (or too few pixels to tell) with no curved pattern."""
-    return (est.ok or est.status in ("depth_not_observable", "too_few_points")) and est.curvature_shift_deg is None
-
-
 def _curved(est: LightAwareEstimate) -> bool:
     """Whether a fit's residual holds a curved patch's pattern: a misfit, or a pattern kept within its sigma."""
     return est.status == "plane_misfit" or est.curvature_shift_deg is not None
@@ -267,7 +262,8 @@ def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
     if s.lobe != "auto":
         return _fit_plane(*fit, s)
     pho = _fit_plane(*fit, replace(s, lobe="phong"))
-    if _fits(pho):
+    # no other lobe needed: passing (or too few pixels to tell) with no curved pattern
+    if (pho.ok or pho.status in ("depth_not_observable", "too_few_points")) and pho.curvature_shift_deg is None:
         return pho.noted("phong lobe fits")
     start = (dict(start_normal=pho.normal, start_roughness=pho.roughness, start_distance_mm=pho.fitted_distance_mm)
              if pho.has_normal else dict(start_normal=s.start_normal, start_roughness=s.start_roughness))
