@@ -500,14 +500,9 @@ def fit_arguments(image, kwargs: dict) -> dict:
 
 
 def _isocurve_isophotes(gray, big: Roi, bp_uv, refine: bool = True) -> tuple[list[np.ndarray], list[float]]:
-    """The isophotes given to :func:`isocurve_fit`: at each of :data:`ISOCURVE_ISOVALUES`, the closed
-    contour about the BP (refined as ``refine`` says); cut or short levels are left out.
-
-    Returns
-    -------
-    (list of ndarray of shape (N_k, 2), list of float)
-        The points (u, v), px, and their isovalues.
-    """
+    """The isophotes given to :func:`isocurve_fit`, ``(points, isovalues)``: at each of :data:`ISOCURVE_ISOVALUES`,
+    the closed contour's points (N_k, 2) (u, v) px about the BP (refined as ``refine`` says); cut or short levels
+    are left out."""
     vals = np.asarray(gray[big.slices], dtype=np.float64)
     base = float(np.median(border_ring(vals)))
     c, r = int(round(bp_uv[0])) - big.col0, int(round(bp_uv[1])) - big.row0

@@ -172,13 +172,10 @@ def guide_spread_deg(ray, normal, depth_mm: float, rig: LightRig) -> float:
 
     Parameters
     ----------
-    ray : array_like of shape (3,)
-        Unit viewing ray of the BP, camera frame.
+    ray, depth_mm, rig
+        As in :func:`bp_ray_error_deg`.
     normal : array_like of shape (3,)
         Unit normal, camera frame, facing the camera.
-    depth_mm : float
-        Distance along ``ray``, mm, > 0.
-    rig : LightRig
 
     Returns
     -------

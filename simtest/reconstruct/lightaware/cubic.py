@@ -118,10 +118,8 @@ def cubic_patch_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_lev
     ----------
     values, origin_uv, bp_uv, camera, rig, clip_level, nominal_depth_mm, max_pixels
         As in :func:`photometric_fit`; ``nominal_depth_mm`` centres the profile's grid.
-    start_roughness : float, optional
-        Phong n of the flat start (default 50).
-    max_nfev : int
-        Evaluation budget per fit, in Jacobian evaluations.
+    start_roughness, max_nfev
+        As in :func:`patch_depth_profile`.
     misfit_sigma : bool
         As :func:`quadric_fit`'s.
 
