@@ -231,10 +231,8 @@ def plane_rig_intensity(rays: np.ndarray, normal, distance_mm: float, rig: Light
     ----------
     rays : ndarray of shape (N, 3)
         Unit viewing rays, camera frame.
-    normal : array_like of shape (3,)
-        Unit plane normal facing the camera.
-    distance_mm : float
-        Plane distance h > 0, mm.
+    normal, distance_mm
+        As in :func:`specular_point_depth`.
     rig : LightRig
         The lights.
     roughness : float
