@@ -35,7 +35,7 @@ from typing import Iterable
 import numpy as np
 from PIL import Image
 
-from simtest._io import atomic_write_json, atomic_write_text
+from simtest._io import TMP_SUFFIX, atomic_write_json, atomic_write_text
 
 __all__ = ["CARD_NAME", "FORMAT", "FORMAT_VERSION", "MANIFEST_NAME", "DatasetError", "DatasetWriteError", "ShardWriter",
            "array_sha256", "card_sha256", "file_sha256", "json_sha256", "labels_sha256", "read_card", "read_manifest",
@@ -46,7 +46,6 @@ FORMAT_VERSION = 1
 CARD_NAME = "dataset.json"
 MANIFEST_NAME = "manifest.jsonl"
 SHARDS_DIR = "shards"
-TMP_SUFFIX = ".tmp"
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 #: errno values that mean an output cannot be written (reported as one line).
 WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
@@ -70,39 +69,13 @@ class DatasetWriteError(DatasetError):
 
 
 def array_sha256(a: np.ndarray) -> str:
-    """sha256 of the C-ordered bytes of an array.
-
-    Parameters
-    ----------
-    a : ndarray
-        Any shape and dtype (dtype and shape are not hashed; the manifest records them beside).
-
-    Returns
-    -------
-    str
-        64 hex digits.
-    """
+    """64 hex digits of the sha256 of an array's C-ordered bytes (not its dtype or shape, which the
+    manifest records beside)."""
     return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
 
 
 def file_sha256(path: Path) -> str:
-    """sha256 of a file (:func:`hashlib.file_digest`, read in chunks).
-
-    Parameters
-    ----------
-    path : Path
-        File to hash.
-
-    Returns
-    -------
-    str
-        64 hex digits.
-
-    Raises
-    ------
-    OSError
-        If the file cannot be opened or read.
-    """
+    """64 hex digits of the sha256 of a file, read in chunks; OSError if it cannot be read."""
     with open(path, "rb") as fh:
         return hashlib.file_digest(fh, "sha256").hexdigest()
 
@@ -113,36 +86,15 @@ def json_sha256(obj) -> str:
 
 
 def labels_sha256(row: dict) -> str:
-    """sha256 of a sample's labels: its row as canonical JSON, without ``labels_sha256`` and ``npz``.
+    """:func:`json_sha256` of a shard or manifest row without its ``labels_sha256`` and ``npz`` keys.
 
-    Parameters
-    ----------
-    row : dict
-        A shard or manifest row (labels, parameters, pose, highlights, array hashes).
-
-    Returns
-    -------
-    str
-        64 hex digits of ``sha256(json.dumps(row, sort_keys=True, separators=(",", ":")))``; JSON
-        floats round-trip exactly, so a row read back from disk hashes as it was written.
+    JSON floats round-trip exactly, so a row read back from disk hashes as it was written.
     """
     return json_sha256({k: v for k, v in row.items() if k not in ("labels_sha256", "npz")})
 
 
 def card_sha256(card: dict) -> str:
-    """sha256 of a dataset card: its canonical JSON without the ``card_sha256`` key.
-
-    Parameters
-    ----------
-    card : dict
-        The card (``dataset.json``) as read or about to be written.
-
-    Returns
-    -------
-    str
-        64 hex digits of ``sha256(json.dumps(card, sort_keys=True, separators=(",", ":")))``
-        over every key but ``card_sha256``.
-    """
+    """:func:`json_sha256` of a dataset card (``dataset.json``) without its ``card_sha256`` key."""
     return json_sha256({k: v for k, v in card.items() if k != "card_sha256"})
 
 
@@ -216,11 +168,6 @@ def shard_json_path(root: Path, shard: int) -> Path:
 def entry_name(index: int, array: str) -> str:
     """Key of an array inside a shard ``.npz``: ``"<index:08d>/<array>"``."""
     return f"{index:08d}/{array}"
-
-
-def array_info(a: np.ndarray) -> dict:
-    """``{"sha256", "dtype", "shape"}`` of an array, as recorded in the manifest."""
-    return {"sha256": array_sha256(a), "dtype": str(a.dtype), "shape": list(a.shape)}
 
 
 @dataclass
@@ -309,7 +256,7 @@ class ShardWriter:
             info.external_attr = 0o644 << 16
             with self._zip.open(info, "w", force_zip64=True) as fh:
                 np.lib.format.write_array(fh, np.ascontiguousarray(a), allow_pickle=False)
-            arrays[name] = array_info(a)
+            arrays[name] = {"sha256": array_sha256(a), "dtype": str(a.dtype), "shape": list(a.shape)}
         row = {**sample.record, "index": int(sample.index), "shard": int(self.shard), "arrays": arrays}
         row["labels_sha256"] = labels_sha256(row)
         self._rows.append(row)
@@ -363,34 +310,6 @@ def read_shard_rows(root: Path, shard: int) -> dict | None:
         return None
 
 
-def read_shard_comment(npz: Path) -> dict:
-    """The fields of a shard file's zip comment (see :func:`shard_comment`).
-
-    Parameters
-    ----------
-    npz : Path
-        A shard file.
-
-    Returns
-    -------
-    dict
-        ``{"shard", "config_fingerprint", "labels_sha256"}`` as strings; empty when the comment
-        is missing or not a simtest shard comment.
-
-    Raises
-    ------
-    OSError, zipfile.BadZipFile
-        If the file cannot be read or is not a zip file.
-    NotImplementedError
-        If its central directory asks for a zip version or compression Python cannot read (a
-        damaged header reads that way).
-    """
-    with zipfile.ZipFile(npz) as z:
-        text = z.comment.decode("ascii", errors="replace")
-    head, _, rest = text.partition(" ")
-    return {} if head != FORMAT else dict(kv.split("=", 1) for kv in rest.split() if "=" in kv)
-
-
 def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> list[str]:
     """What is wrong with the files of one shard (hashes and provenance; arrays not decoded).
 
@@ -438,12 +357,14 @@ def check_shard(root: Path, shard: int, fingerprint: str, indices: range) -> lis
             out.append(f"{js}: sample {r.get('index')}: labels differ from their labels_sha256")
     try:
         digest = file_sha256(npz)
-        comment = read_shard_comment(npz)
+        with zipfile.ZipFile(npz) as z:  # NotImplementedError: a damaged central directory
+            head, _, rest = z.comment.decode("ascii", errors="replace").partition(" ")
     except (OSError, zipfile.BadZipFile, NotImplementedError) as exc:
         return out + [f"{npz}: unreadable: {exc}"]
     if digest != doc.get("npz_sha256"):
         out.append(f"{npz}: sha256 differs from {js.name}")
     want = shard_comment(shard, fingerprint, (str(r.get("labels_sha256")) for r in samples)).decode()
+    comment = {} if head != FORMAT else dict(kv.split("=", 1) for kv in rest.split() if "=" in kv)
     got = " ".join([FORMAT] + [f"{k}={v}" for k, v in comment.items()]) if comment else "(none)"
     if got != want:
         out.append(f"{npz}: zip comment {got[:60]!r}... does not name shard {shard} of this dataset "
@@ -527,22 +448,7 @@ def write_manifest(root: Path, rows: Iterable[dict]) -> Path:
 
 
 def decode_png(a: np.ndarray) -> np.ndarray:
-    """Decode the stored ``sensor_png`` bytes to the sensor image.
-
-    Parameters
-    ----------
-    a : ndarray of shape (nbytes,)
-        uint8 bytes of a PNG file.
-
-    Returns
-    -------
-    ndarray of shape (H, W) or (H, W, 3)
-        uint8 image, rows = v, columns = u.
-
-    Raises
-    ------
-    PIL.UnidentifiedImageError
-        If the bytes are not an image.
-    """
+    """The uint8 sensor image (H, W) or (H, W, 3), rows = v, of the stored ``sensor_png`` bytes
+    (uint8, shape (nbytes,)); PIL.UnidentifiedImageError if they are not an image."""
     with Image.open(io.BytesIO(np.asarray(a, dtype=np.uint8).tobytes())) as im:
         return np.asarray(im)
