@@ -15,7 +15,7 @@ import importlib
 __all__ = ["collate", "load_config", "open", "render_sample"]
 
 _WHERE = {
-    "open": ("simtest.dataset.reader", "open_dataset"),
+    "open": ("simtest.dataset.reader", "SimtestDataset"),
     "collate": ("simtest.dataset.reader", "collate"),
     "load_config": ("simtest.dataset.config", "load_config"),
     "render_sample": ("simtest.dataset.sample", "render_sample"),

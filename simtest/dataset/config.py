@@ -46,13 +46,6 @@ DEFAULT_SPLITS = (("train", 0.8), ("val", 0.1), ("test", 0.1))
 #: ``level`` of full scale before the sensor model (``exposure`` multiplies on top). 99.9 lets at most
 #: 0.1 % of surface pixels saturate (99.5 saturated small highlights' isophotes); 0.9 leaves headroom.
 DEFAULT_AUTO_EXPOSURE = (99.9, 0.9)
-_DIST_KEYS = {
-    "constant": ("value",),
-    "uniform": ("low", "high"),
-    "loguniform": ("low", "high"),
-    "normal": ("mean", "std", "low", "high"),
-    "choice": ("values", "weights"),
-}
 _MAX_SHARD = 100_000
 #: Most samples a config may ask for: the manifest (~4 KB a row) is read whole, so 10 million rows
 #: are ~40 GB in memory (and ~17 TB of shards); a larger count is a typo.
@@ -80,14 +73,8 @@ class Dist:
     args: tuple
 
     def support(self) -> tuple[float, float] | None:
-        """Closed interval that holds every draw.
-
-        Returns
-        -------
-        (float, float) or None
-            ``(low, high)`` in the parameter's unit (``-inf``/``inf`` for an unclipped normal);
-            None for a constant or choice that is not numeric.
-        """
+        """Closed interval ``(low, high)`` that holds every draw, in the parameter's unit
+        (``-inf``/``inf`` for an unclipped normal); None for a constant or choice that is not numeric."""
         if self.kind == "constant":
             v = self.args[0]
             return (v, v) if _is_number(v) else None
@@ -187,19 +174,8 @@ class ParamDef:
     choices: tuple[str, ...] | None = None
 
     def default_for(self, family: str) -> Dist:
-        """Default distribution of this parameter for one family.
-
-        Parameters
-        ----------
-        family : str
-            A name in :data:`FAMILIES`.
-
-        Returns
-        -------
-        Dist or None
-            The family's own default if there is one, else the ``"*"`` default, else None
-            (the parameter is not used by that family).
-        """
+        """The default distribution for ``family`` (one of :data:`FAMILIES`): its own, else the
+        ``"*"`` one, else None (the parameter is not used by that family)."""
         return self.default.get(family, self.default.get("*"))
 
 
@@ -347,19 +323,8 @@ class DatasetConfig:
         return -(-self.count // self.shard_size)
 
     def shard_range(self, shard: int) -> range:
-        """Sample indices held by ``shard``.
-
-        Parameters
-        ----------
-        shard : int
-            Shard number in ``[0, n_shards)``.
-
-        Returns
-        -------
-        range
-            ``shard * shard_size`` up to ``min(count, (shard + 1) * shard_size)`` (exclusive);
-            empty for a shard number past the end.
-        """
+        """Sample indices held by ``shard``: ``shard * shard_size`` up to ``min(count, (shard + 1) *
+        shard_size)`` (exclusive); empty for a shard number past the end."""
         start = shard * self.shard_size
         return range(start, min(self.count, start + self.shard_size))
 
@@ -399,13 +364,8 @@ class DatasetConfig:
                 "params": {f: {k: d.as_dict() for k, d in self.params[f].items()} for f in FAMILIES if f in used}}
 
     def fingerprint(self) -> str:
-        """sha256 of the canonical form: two configs that draw the same samples share it.
-
-        Returns
-        -------
-        str
-            64 hex digits of ``sha256(json.dumps(to_dict(), sort_keys=True))`` (compact separators).
-        """
+        """64 hex digits of ``sha256(json.dumps(to_dict(), sort_keys=True))`` (compact separators):
+        two configs that draw the same samples share it."""
         text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
 
@@ -460,6 +420,8 @@ class _Constant:
 
 _DIST_MODELS = {"constant": _Constant, "uniform": _Uniform, "loguniform": _Uniform,
                 "normal": _Normal, "choice": _Choice}
+#: Each distribution's keys, in the order of :attr:`Dist.args`.
+_DIST_KEYS = {k: tuple(f for f in m.__dataclass_fields__ if f != "dist") for k, m in _DIST_MODELS.items()}
 
 
 @_model

@@ -360,8 +360,8 @@ def _progress(enabled: bool, total: int, done: int):
 
 
 def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLike, *, workers: int | None = None,
-             scheduler: str | None = None, sample_fn: Callable | None = None, progress: bool = True,
-             window: int | None = None) -> GenerateReport:
+             scheduler: str | None = None, sample_fn: Callable | None = None,
+             progress: bool = True) -> GenerateReport:
     """Render the samples of ``config`` that ``out_dir`` lacks and write them as shards.
 
     Parameters
@@ -381,8 +381,6 @@ def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLi
         Must be picklable (a module-level function) for process pools and Dask.
     progress : bool
         Show a rich progress bar (samples/s and time left) on stderr.
-    window : int, optional
-        Tasks in flight (default 2 x workers + 2); bounds memory.
 
     Returns
     -------
@@ -423,7 +421,7 @@ def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLi
     dask_ex = _Dask(sample_fn, config, scheduler) if scheduler is not None else None
     try:
         with _locked(out), signals_interrupt():
-            return _generate(config, out, dask_ex, workers, sample_fn, progress, window)
+            return _generate(config, out, dask_ex, workers, sample_fn, progress)
     except KeyboardInterrupt:
         raise Interrupted(f"{out}: interrupted; finished samples are kept (shards and spool): rerun "
                           "the same command to resume") from None
@@ -466,7 +464,7 @@ def _locked(out: Path):
         os.close(fd)  # releases the lock
 
 
-def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> GenerateReport:
+def _generate(config, out, dask_ex, workers, sample_fn, progress) -> GenerateReport:
     complete = _prepare(config, out)
     todo = [s for s in range(config.n_shards) if s not in complete]
     spooled = _spool_load(config, out, todo)
@@ -500,7 +498,7 @@ def _generate(config, out, dask_ex, workers, sample_fn, progress, window) -> Gen
                 ex = _Inline(sample_fn, config)
             else:
                 ex = _Pool(sample_fn, config, n_workers)
-            window = window or (2 * n_workers + 2)
+            window = 2 * n_workers + 2  # tasks in flight: bounds memory
             rss: dict[str, float] = {}
             inflight: dict = {}
             prog, task = _progress(progress, config.count, report.skipped + report.resumed)

@@ -23,7 +23,7 @@ from simtest._lazy import require
 from simtest.dataset.shards import (MANIFEST_NAME, DatasetError, decode_png, entry_name, labels_sha256,
                                     read_card, read_manifest, shard_path_from_row)
 
-__all__ = ["SPLITS", "SimtestDataset", "TorchView", "collate", "open_dataset"]
+__all__ = ["SPLITS", "SimtestDataset", "TorchView", "collate"]
 
 #: Split names a sample may carry (``row["split"]``).
 SPLITS = ("train", "val", "test")
@@ -35,7 +35,7 @@ _ROW_TENSORS = ("K", "cam_to_world")
 
 
 class SimtestDataset:
-    """A dataset folder as a lazy sequence of samples.
+    """A dataset folder as a lazy sequence of samples (``simtest.dataset.open``).
 
     Parameters
     ----------
@@ -285,34 +285,3 @@ def collate(batch: list[dict]) -> dict:
     if batch and "record" in batch[0]:
         out["record"] = [b["record"] for b in batch]
     return out
-
-
-def open_dataset(root, keys: Sequence[str] | None = None, with_record: bool = True,
-                 split: str | None = None) -> SimtestDataset:
-    """Open a dataset folder lazily (``simtest.dataset.open``).
-
-    Parameters
-    ----------
-    root : path
-        Dataset folder (written by ``simtest dataset generate``).
-    keys : sequence of str, optional
-        Arrays to load per sample (default: all); see :class:`SimtestDataset`.
-    with_record : bool
-        Include the manifest row under ``"record"``.
-    split : str, optional
-        ``"train"``, ``"val"`` or ``"test"``: only that split's samples.
-
-    Returns
-    -------
-    SimtestDataset
-        ``.torch(keys=..., transform=...)`` gives the PyTorch view.
-
-    Raises
-    ------
-    DatasetError
-        If ``root`` is not a complete dataset (card or manifest missing or unreadable), or the
-        manifest names a shard file outside the folder.
-    KeyError
-        If ``keys`` names an unknown array.
-    """
-    return SimtestDataset(root, keys=keys, with_record=with_record, split=split)

@@ -108,20 +108,8 @@ class Sample:
 
 
 def sample_rng(seed: int, index: int) -> np.random.Generator:
-    """The generator of sample ``index``: ``default_rng(SeedSequence([seed, index]))``.
-
-    Parameters
-    ----------
-    seed : int
-        Root seed of the dataset (0 is valid).
-    index : int
-        Sample index.
-
-    Returns
-    -------
-    numpy.random.Generator
-        A fresh generator; the same ``(seed, index)`` gives the same stream in any process.
-    """
+    """A fresh ``default_rng(SeedSequence([seed, index]))`` for sample ``index`` of root ``seed`` (0 is
+    valid): the same ``(seed, index)`` gives the same stream in any process."""
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
 
 
@@ -361,8 +349,8 @@ def isophote_record(bp_mm, normal, K, isovalues, phong_n: float) -> list[dict]:
             try:
                 C = project_circle(foot, N, r, K)
             except ValueError:
-                C = None
-            if C is not None:
+                pass
+            else:
                 rec["conic"] = C.tolist()
                 rec["kind"] = conic_kind(C)
                 e = conic_to_ellipse(C)
@@ -411,18 +399,8 @@ def _portable_scene(spec) -> dict:
 
 
 def mesh_sha256(family: str) -> str | None:
-    """sha256 of a bundled mesh file.
-
-    Parameters
-    ----------
-    family : str
-        A mesh family samples render: ``"colon"``, ``"colon_haustral"`` or ``"liver"``.
-
-    Returns
-    -------
-    str or None
-        64 hex digits of ``meshes/<family>.ply``; None for analytic families or a missing file.
-    """
+    """64 hex digits of the sha256 of ``meshes/<family>.ply`` (``"colon"``, ``"colon_haustral"`` or
+    ``"liver"``); None for analytic families or a missing file."""
     if family not in ("colon", "colon_haustral", "liver"):
         return None
     path = bundled_mesh_path(family)
@@ -430,22 +408,12 @@ def mesh_sha256(family: str) -> str | None:
 
 
 def camera_file(result) -> dict:
-    """The camera file (camera model, image size, light rig) of a render, as a JSON object.
+    """The camera file of a :class:`simtest.render.RenderResult` as a JSON object.
 
-    Parameters
-    ----------
-    result : simtest.render.RenderResult
-        A render.
-
-    Returns
-    -------
-    dict
-        ``{"model": "pinhole", "K", "dist_coeffs": None, "image_size": [W, H], "lights": [...]}``
-        in the format of :func:`simtest.geometry.camera_file.save_camera` (written to a ``.json``
-        file it loads with :func:`simtest.geometry.camera_file.load_camera`): the pinhole K of the
-        render (pixels, integer pixel centres) and its point light at ``result.light_pos`` (camera
-        frame, mm) with the render's intensity; falloff ``"none"`` when the dataset cancels the
-        1/d^2 falloff of the specular image, else ``"inverse_square"``.
+    ``{"model": "pinhole", "K", "dist_coeffs": None, "image_size": [W, H], "lights": [...]}`` in the
+    format of :func:`simtest.geometry.camera_file.save_camera`: the render's pinhole K (pixels,
+    integer pixel centres) and its light rig (camera frame, mm); falloff ``"none"`` when the dataset
+    cancels the 1/d^2 falloff of the specular image, else ``"inverse_square"``.
     """
     d = result.camera_model.to_json_dict()
     d["lights"] = result.light_rig.to_json_list()
@@ -453,30 +421,10 @@ def camera_file(result) -> dict:
 
 
 def sample_from_render(config: DatasetConfig, index: int, params: dict, result) -> Sample:
-    """Collect the arrays and records of a sample from a :class:`simtest.render.RenderResult`.
-
-    Parameters
-    ----------
-    config : DatasetConfig
-        The config (its isovalues set the highlight mask and the isophote labels).
-    index : int
-        Sample index.
-    params : dict
-        Output of :func:`draw_parameters`.
-    result : simtest.render.RenderResult
-        The render of :func:`build_scene` ``(config, params)``.
-
-    Returns
-    -------
-    Sample
-        Arrays as in :data:`CHANNELS` (normals zeroed and depth zeroed outside the mask) and
-        the JSON-ready record.
-
-    Raises
-    ------
-    ValueError
-        If the sensor image is not 8-bit.
-    """
+    """The :class:`Sample` (arrays of :data:`CHANNELS`, zero outside the mask, and the JSON-ready
+    record) of ``result``, the render of :func:`build_scene` ``(config, params)``; the config's
+    isovalues set the highlight mask and the isophote labels. ValueError if the sensor image is not
+    8-bit."""
     mask = np.asarray(result.mask, dtype=bool)
     normals = np.where(mask[..., None], np.nan_to_num(np.asarray(result.normals, np.float32)), 0.0)
     depth = np.where(mask, np.nan_to_num(np.asarray(result.depth, np.float32)), 0.0)
@@ -533,14 +481,8 @@ def _configure_threads() -> None:
 
 
 def render_sample(config: DatasetConfig, index: int) -> Sample:
-    """Draw, build, render and label sample ``index`` of ``config``.
-
-    Parameters
-    ----------
-    config : DatasetConfig
-        The validated config.
-    index : int
-        Sample index, 0 <= index < config.count.
+    """Draw, build, render and label sample ``index`` of ``config`` (parameters as
+    :func:`draw_parameters`).
 
     Returns
     -------

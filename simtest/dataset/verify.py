@@ -52,13 +52,7 @@ class VerifyReport:
         return not self.problems
 
     def add(self, msg: str) -> None:
-        """Record one problem.
-
-        Parameters
-        ----------
-        msg : str
-            One line, ``<path>: <what>``.
-        """
+        """Record one problem, one line ``<path>: <what>``."""
         self.problems.append(msg)
 
 
