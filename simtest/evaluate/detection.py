@@ -321,14 +321,6 @@ class LabelledFrame:
     label_px: np.ndarray | None = None
 
 
-def _tile_box(tile: str, tile_px: int) -> tuple[int, int, int, int]:
-    m = re.fullmatch(r"r(\d+)c(\d+)", tile)
-    if m is None:
-        raise ValueError(f"tile id {tile!r} is not of the form r<row>c<column>")
-    r, c = int(m.group(1)), int(m.group(2))
-    return r * tile_px, (r + 1) * tile_px, c * tile_px, (c + 1) * tile_px
-
-
 def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame]:
     """The frames of a hand-labelled set (``tests/data/real/structures_labelled.json``'s layout).
 
@@ -380,10 +372,11 @@ def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame
                          f"({image.shape[1]} x {image.shape[0]} px)")
     out = []
     for tile, items in tiles.items():
-        try:
-            r0, r1, c0, c1 = _tile_box(tile, side)
-        except ValueError as exc:
-            raise ValueError(f"{path}: tiles: {exc}") from None
+        m = re.fullmatch(r"r(\d+)c(\d+)", tile)
+        if m is None:
+            raise ValueError(f"{path}: tiles: tile id {tile!r} is not of the form r<row>c<column>")
+        r0, c0 = int(m.group(1)) * side, int(m.group(2)) * side
+        r1, c1 = r0 + side, c0 + side
         if r1 > image.shape[0] or c1 > image.shape[1]:
             raise ValueError(f"{path}: tiles.{tile}: rows {r0}-{r1}, columns {c0}-{c1} lie outside the "
                              f"{image.shape[1]} x {image.shape[0]} px image")

@@ -60,15 +60,13 @@ def precision_recall(confidence, tp_ok, targets: int, thresholds=THRESHOLDS, tar
     return rows
 
 
-def precision_recall_figure(rows: list[dict], title: str = "fits that pass the checks over --min-confidence",
-                            default: float | None = DEFAULT_MIN_CONFIDENCE):
+def precision_recall_figure(rows: list[dict], default: float | None = DEFAULT_MIN_CONFIDENCE):
     """Precision against recall, one point per minimum confidence, the default marked.
 
     Parameters
     ----------
     rows : list of dict
         :func:`precision_recall`'s rows.
-    title : str
     default : float or None
         The run's default minimum confidence, marked (None: not marked, frames of both kinds).
 
@@ -89,6 +87,6 @@ def precision_recall_figure(rows: list[dict], title: str = "fits that pass the c
         ax.plot([d["recall"]], [d["precision"]], "*", color="#d62728", ms=14,
                 label=f"default (--min-confidence {default:g}): P {d['precision']:.2f}, R {d['recall']:.2f}")
     ax.set(xlim=(0, 1), ylim=(0, 1.02), xlabel="recall (labelled isolated highlights found ok)",
-           ylabel="precision (ok estimates on one)", title=title)
+           ylabel="precision (ok estimates on one)", title="fits that pass the checks over --min-confidence")
     ax.legend(fontsize=8, loc="lower left")
     return fig

@@ -147,18 +147,7 @@ _DEPTH = ({"median_abs": "median |error| (%)", "median": "median error (%)", "p9
 
 
 def render_html(results: dict) -> str:
-    """The self-contained report page.
-
-    Parameters
-    ----------
-    results : dict
-        The ``results.json`` document.
-
-    Returns
-    -------
-    str
-        HTML.
-    """
+    """The self-contained HTML report page of a ``results.json`` document."""
     figs = figures(results)
     s = results
     parts = [

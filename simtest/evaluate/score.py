@@ -50,20 +50,9 @@ def estimator_normals(spec: dict) -> dict[str, np.ndarray | None]:
 
 
 def estimator_depths(spec: dict) -> dict[str, float]:
-    """Every depth of one specularity dict (``estimates.json`` form): the recommended
-    ``depth_mm`` as ``normal`` and each light-aware estimator's, mm; estimators without one are
-    left out.
-
-    Parameters
-    ----------
-    spec : dict
-        One entry of ``specularities``.
-
-    Returns
-    -------
-    dict of str to float
-        Estimator name -> distance from the camera centre to the specular point along its ray, mm.
-    """
+    """Every depth of one specularity dict, as :func:`estimator_normals` reads it: estimator name ->
+    distance from the camera centre to the specular point along its ray, mm (the recommended
+    ``depth_mm`` as ``normal``, then each light-aware estimator's; those without one left out)."""
     out: dict[str, float] = {}
     if spec.get("depth_mm") is not None:
         out["normal"] = float(spec["depth_mm"])
