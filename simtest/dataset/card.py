@@ -12,24 +12,23 @@ from simtest.dataset.shards import CARD_NAME, FORMAT, FORMAT_VERSION, MANIFEST_N
 __all__ = ["READING", "make_card"]
 
 
-def _conventions() -> dict:
-    return {
-        "camera_frame": "OpenCV: x right, y down, z forward; origin at the camera centre",
-        "pixels": "(u, v) = (column, row); pixel centres at integer coordinates",
-        "K": "K = [[f, 0, M/2 - 0.5], [0, f, M/2 - 0.5], [0, 0, 1]] for an M x M image",
-        "cam_to_world": "4 x 4: columns are the camera x, y, z axes and centre in the scene's world frame",
-        "normals": "unit vectors in the camera frame facing the camera (n . ray < 0)",
-        "lengths": "millimetres",
-        "angles": "degrees in files (suffix _deg)",
-        "curvature": "k1 >= k2, 1/mm, at the BP, from the renderer's ground truth",
-        "isophotes": "tangent-plane model: circle of radius r_- (paper Prop. 2) about the foot of "
-                     "the perpendicular from the camera to the tangent plane at the BP, imaged "
-                     "exactly; t relative to the Phong peak; exact for planes with a co-located "
-                     "light and cancelled falloff",
-        "randomness": "sample i draws from numpy default_rng(SeedSequence([seed, i]))",
-        "split": "sample i is in the first split whose cumulative fraction exceeds "
-                 "int(sha256('simtest-split:<seed>:<i>')[:8 bytes]) / 2^64",
-    }
+_CONVENTIONS = {
+    "camera_frame": "OpenCV: x right, y down, z forward; origin at the camera centre",
+    "pixels": "(u, v) = (column, row); pixel centres at integer coordinates",
+    "K": "K = [[f, 0, M/2 - 0.5], [0, f, M/2 - 0.5], [0, 0, 1]] for an M x M image",
+    "cam_to_world": "4 x 4: columns are the camera x, y, z axes and centre in the scene's world frame",
+    "normals": "unit vectors in the camera frame facing the camera (n . ray < 0)",
+    "lengths": "millimetres",
+    "angles": "degrees in files (suffix _deg)",
+    "curvature": "k1 >= k2, 1/mm, at the BP, from the renderer's ground truth",
+    "isophotes": "tangent-plane model: circle of radius r_- (paper Prop. 2) about the foot of "
+                 "the perpendicular from the camera to the tangent plane at the BP, imaged "
+                 "exactly; t relative to the Phong peak; exact for planes with a co-located "
+                 "light and cancelled falloff",
+    "randomness": "sample i draws from numpy default_rng(SeedSequence([seed, i]))",
+    "split": "sample i is in the first split whose cumulative fraction exceeds "
+             "int(sha256('simtest-split:<seed>:<i>')[:8 bytes]) / 2^64",
+}
 
 
 READING = """\
@@ -115,7 +114,7 @@ def make_card(config: DatasetConfig, *, status: str, counts: dict | None = None,
         "auto_exposure": (None if config.auto_exposure is None else
                           {"percentile": config.auto_exposure[0], "level": config.auto_exposure[1],
                            "applied": "per sample, record field exposure_applied"}),
-        "conventions": _conventions(),
+        "conventions": _CONVENTIONS,
         "layout": {
             "card": CARD_NAME,
             "manifest": MANIFEST_NAME + " (one JSON row per sample, in index order)",
