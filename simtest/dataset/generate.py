@@ -360,8 +360,7 @@ def _progress(enabled: bool, total: int, done: int):
 
 
 def generate(config: DatasetConfig | str | os.PathLike, out_dir: str | os.PathLike, *, workers: int | None = None,
-             scheduler: str | None = None, sample_fn: Callable | None = None,
-             progress: bool = True) -> GenerateReport:
+             scheduler: str | None = None, sample_fn: Callable | None = None, progress: bool = True) -> GenerateReport:
     """Render the samples of ``config`` that ``out_dir`` lacks and write them as shards.
 
     Parameters
