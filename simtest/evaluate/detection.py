@@ -193,9 +193,7 @@ class FrameScore:
         """Counts and ratios (None where a ratio has no denominator), JSON-ready."""
         pc, rc = self._ratio(self.candidates_tp, self.candidates), self._ratio(self.targets_found, self.targets)
         po, ro = self._ratio(self.ok_tp, self.ok), self._ratio(self.targets_found_ok, self.targets)
-        return {"name": self.name, "targets": self.targets, "candidates": self.candidates,
-                "candidates_tp": self.candidates_tp, "ok": self.ok, "ok_tp": self.ok_tp,
-                "targets_found": self.targets_found, "targets_found_ok": self.targets_found_ok,
+        return {"name": self.name, **{k: getattr(self, k) for k in _COUNTS},
                 "precision_candidates": pc, "recall_candidates": rc, "f1_candidates": self._f1(pc, rc),
                 "precision_ok": po, "recall_ok": ro, "f1_ok": self._f1(po, ro),
                 "ok_on": dict(sorted(self.ok_on.items()))}
