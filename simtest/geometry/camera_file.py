@@ -72,8 +72,27 @@ def _has_bool(value) -> bool:
     return isinstance(value, bool) or (isinstance(value, (list, tuple)) and any(_has_bool(v) for v in value))
 
 
-def _model_from_dict(data: dict, where: str) -> CameraModel:
-    """Build the model of a parsed JSON camera object; ``where`` names the file in errors."""
+def camera_from_dict(data: dict, where: str = "camera") -> CameraModel:
+    """A camera model from its camera-file JSON object (the ``"lights"`` key is ignored here).
+
+    Parameters
+    ----------
+    data : dict
+        As :meth:`CameraModel.to_json_dict` writes it.
+    where : str
+        What to name in error messages.
+
+    Returns
+    -------
+    CameraModel
+
+    Raises
+    ------
+    CameraFileError
+        As :func:`load_camera`.
+    """
+    if not isinstance(data, dict):
+        raise CameraFileError(f"{where}: must be a JSON object with a 'model' and its parameters")
     name = data.get("model", "pinhole")
     if name not in _MODEL_KEYS:
         raise CameraFileError(f"{where}: key 'model' must be one of {sorted(_MODEL_KEYS)}, got {name!r}")
@@ -109,30 +128,6 @@ def _model_from_dict(data: dict, where: str) -> CameraModel:
             raise CameraFileError(msg) from None
         key, _, rest = msg.partition(": ")
         raise CameraFileError(f"{where}: key '{key}': {rest}") from None
-
-
-def camera_from_dict(data: dict, where: str = "camera") -> CameraModel:
-    """A camera model from its camera-file JSON object (the ``"lights"`` key is ignored here).
-
-    Parameters
-    ----------
-    data : dict
-        As :meth:`CameraModel.to_json_dict` writes it.
-    where : str
-        What to name in error messages.
-
-    Returns
-    -------
-    CameraModel
-
-    Raises
-    ------
-    CameraFileError
-        As :func:`load_camera`.
-    """
-    if not isinstance(data, dict):
-        raise CameraFileError(f"{where}: must be a JSON object with a 'model' and its parameters")
-    return _model_from_dict(data, where)
 
 
 def _lights_from_list(value, where: str) -> LightRig:
@@ -246,9 +241,7 @@ def load_camera(path) -> CameraFile:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CameraFileError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise CameraFileError(f"{path}: must be a JSON object with a 'model' and its parameters")
-    model = _model_from_dict(data, str(path))
+    model = camera_from_dict(data, str(path))
     lights = _lights_from_list(data["lights"], str(path)) if "lights" in data else LightRig.colocated()
     response = None
     if "response" in data:

@@ -17,6 +17,7 @@ References
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 from typing import ClassVar
 
@@ -33,18 +34,15 @@ _NEWTON_PX = 1e-9
 _NEWTON_MAX_IT = 60
 
 
-def _as_uv(uv) -> np.ndarray:
-    uv = np.asarray(uv, dtype=np.float64)
-    if uv.ndim != 2 or uv.shape[1] != 2:
-        raise ValueError(f"pixels must have shape (N, 2), got {uv.shape}")
-    return uv
+def _as_rows(x, width: int, what: str) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != width:
+        raise ValueError(f"{what} must have shape (N, {width}), got {x.shape}")
+    return x
 
 
-def _as_rays(rays) -> np.ndarray:
-    rays = np.asarray(rays, dtype=np.float64)
-    if rays.ndim != 2 or rays.shape[1] != 3:
-        raise ValueError(f"rays must have shape (N, 3), got {rays.shape}")
-    return rays
+_as_uv = functools.partial(_as_rows, width=2, what="pixels")
+_as_rays = functools.partial(_as_rows, width=3, what="rays")
 
 
 def _image_size(size, where: str) -> tuple[int, int] | None:
@@ -56,8 +54,7 @@ def _image_size(size, where: str) -> tuple[int, int] | None:
     return int(size[0]), int(size[1])
 
 
-def _finite_scalar(value, where: str) -> float:
-    return finite_number(value, where, IntrinsicsError)
+_finite_scalar = functools.partial(finite_number, error=IntrinsicsError)
 
 
 def _linear_rows(xy: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -125,9 +122,9 @@ class CameraModel(ABC):
         """
 
     @property
-    @abstractmethod
     def principal_point(self) -> np.ndarray:
-        """ndarray of shape (2,): the pixel of the optical axis +z."""
+        """ndarray of shape (2,): the pixel of the optical axis +z (that of ``K`` unless a model says otherwise)."""
+        return self.K[:2, 2].copy()
 
     @abstractmethod
     def params(self) -> dict:
@@ -247,10 +244,6 @@ class PinholeCamera(CameraModel):
         dc = np.zeros(0) if self.dist_coeffs is None else self.dist_coeffs[:12]
         self._k = np.pad(dc, (0, 12 - dc.size))  # k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4
         self._Kinv = np.linalg.inv(self.K)
-
-    @property
-    def principal_point(self) -> np.ndarray:
-        return self.K[:2, 2].copy()
 
     def params(self) -> dict:
         return {"K": self.K.tolist(),
@@ -388,10 +381,6 @@ class FisheyeCamera(CameraModel):
             return theta * poly
         dpoly = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
         return theta * poly, dpoly
-
-    @property
-    def principal_point(self) -> np.ndarray:
-        return self.K[:2, 2].copy()
 
     def params(self) -> dict:
         return {"K": self.K.tolist(), "D": [float(x) for x in self.D]}
@@ -609,13 +598,8 @@ def c3vd_camera() -> OmnidirectionalCamera:
     Returns
     -------
     OmnidirectionalCamera
-        The published intrinsics [3]_ (from the dataset's example loader), with the centre in this
-        module's convention (pixel centres at integers).
-
-    References
-    ----------
-    .. [3] T. L. Bobrow et al., "Colonoscopy 3D video dataset with paired depth from 2D-3D
-       registration", Medical Image Analysis 90, 2023, doi:10.1016/j.media.2023.102956.
+        The published intrinsics (module reference [3], from the dataset's example loader), with the
+        centre in this module's convention (pixel centres at integers).
 
     Examples
     --------

@@ -343,30 +343,13 @@ def _ellipses_of(C: np.ndarray):
     return centre, axes, angle, ok
 
 
-def unit_symmetric_cones(Cn: np.ndarray) -> np.ndarray:
-    """The symmetric parts of a stack of cones, each scaled to unit Frobenius norm: what
-    :func:`circle_pose` and :func:`cone_axis` decompose (the compiled estimators start from the
-    same matrices).
+def _cone_eigen_many(Cn: np.ndarray):
+    """Sign-normalised (l1 >= l2 > 0 > l3) eigenvalues (k, 3), eigenvectors (k, 3, 3) and elliptic mask (k,).
 
-    Parameters
-    ----------
-    Cn : ndarray of shape (k, 3, 3)
-        Normalised conics C' = K^T C K, camera frame (any scale and sign).
-
-    Returns
-    -------
-    ndarray of shape (k, 3, 3)
-        ``S / ||S||_F`` with ``S = (C' + C'^T) / 2``; non-finite (with a numpy warning unless
-        suppressed) where a cone is zero or not finite. Each cone's result depends on its own
-        entries only (the norm is numpy's ``einsum`` per cone).
+    Each cone is first made symmetric and scaled to unit Frobenius norm (non-finite where it is zero).
     """
     Cn = 0.5 * (Cn + np.swapaxes(Cn, 1, 2))
-    return Cn / np.sqrt(np.einsum("kij,kij->k", Cn, Cn))[:, None, None]
-
-
-def _cone_eigen_many(Cn: np.ndarray):
-    """Sign-normalised (l1 >= l2 > 0 > l3) eigenvalues (k, 3), eigenvectors (k, 3, 3) and elliptic mask (k,)."""
-    Cn = unit_symmetric_cones(Cn)
+    Cn = Cn / np.sqrt(np.einsum("kij,kij->k", Cn, Cn))[:, None, None]
     finite = np.isfinite(Cn).all(axis=(1, 2))
     w, V = np.linalg.eigh(Cn if finite.all() else np.where(finite[:, None, None], Cn, np.eye(3)))
     eps = TOL.conic_degenerate_rel
