@@ -111,13 +111,12 @@ class SensorResponse:
             raise ResponseError(f"{where}.gamma: give it with curve 'gamma' and only then")
 
         def number(key, default):
-            return _in_range(_positive(value.get(key, default), f"{where}.{key}"), key, f"{where}.{key}")
+            return _number(value.get(key, default), key, f"{where}.{key}")
 
         wb = value.get("white_balance", [1.0, 1.0, 1.0])
         if not (isinstance(wb, list) and len(wb) == 3):
             raise ResponseError(f"{where}.white_balance: must be a list of 3 numbers, got {wb!r}")
-        wbs = tuple(_in_range(_positive(v, f"{where}.white_balance"), "white_balance", f"{where}.white_balance")
-                    for v in wb)
+        wbs = tuple(_number(v, "white_balance", f"{where}.white_balance") for v in wb)
         clip = value.get("clip")
         return cls(curve, number("gamma", 1.0) if curve == "gamma" else 1.0, wbs,
                    number("exposure", 1.0), None if clip is None else number("clip", clip))
@@ -259,14 +258,12 @@ def video_response(sensor) -> SensorResponse:
     return SensorResponse(curve, gamma, tuple(float(v) for v in sensor.white_balance), 1.0, 255.0)
 
 
-def _in_range(v: float, key: str, where: str) -> float:
-    lo, hi, unit, why = RANGES[key]
+def _number(v, key: str, where: str) -> float:
+    """``v`` as a float: a finite number > 0 within ``RANGES[key]``, else the one-line error naming ``where``."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v > 0):
+        raise ResponseError(f"{where}: must be a finite number > 0, got {v!r}")
+    v = float(v)
+    lo, hi, unit, _ = RANGES[key]
     if not lo <= v <= hi:
         raise ResponseError(f"{where}: {v!r} is outside its physical range [{lo:g}, {hi:g}] ({unit})")
     return v
-
-
-def _positive(v, where: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v > 0):
-        raise ResponseError(f"{where}: must be a finite number > 0, got {v!r}")
-    return float(v)
