@@ -167,13 +167,10 @@ class CameraModel(ABC):
         return self._ray_to_pixel_jacobian_unit(d) / n[:, None, None]
 
     def _ray_to_pixel_jacobian_unit(self, d: np.ndarray) -> np.ndarray:
-        """d(pixel)/d(ray) at unit rays d (N, 3); default from :meth:`pixel_to_ray_jacobian`."""
+        """d(pixel)/d(ray) at unit rays d (N, 3); default from a model's own :meth:`pixel_to_ray_jacobian`."""
         uv = self.ray_to_pixel(d)
-        JR = self._pixel_to_ray_jacobian_direct(uv)
+        JR = self.pixel_to_ray_jacobian(uv)
         return _inv(np.concatenate([JR, d[:, :, None]], axis=2))[:, :2, :]  # inverse of [J_R | d]
-
-    def _pixel_to_ray_jacobian_direct(self, uv: np.ndarray) -> np.ndarray:  # pragma: no cover
-        raise NotImplementedError
 
     def to_json_dict(self) -> dict:
         """The camera file's JSON object for this model (without lights)."""
@@ -545,7 +542,8 @@ class OmnidirectionalCamera(CameraModel):
         out[r > self._table_r[-1]] = np.nan
         return out
 
-    def _pixel_to_ray_jacobian_direct(self, uv: np.ndarray) -> np.ndarray:
+    def pixel_to_ray_jacobian(self, uv) -> np.ndarray:
+        uv = _as_uv(uv)
         xy = _linear_rows(uv - [self.cx, self.cy], self._Ainv)
         r = np.linalg.norm(xy, axis=1)
         z, dz = self._z(r, deriv=True)
@@ -561,9 +559,6 @@ class OmnidirectionalCamera(CameraModel):
         out = P @ dp
         out[r > self._table_r[-1]] = np.nan
         return out
-
-    def pixel_to_ray_jacobian(self, uv) -> np.ndarray:
-        return self._pixel_to_ray_jacobian_direct(_as_uv(uv))
 
     def ray_to_pixel(self, rays) -> np.ndarray:
         rays = _as_rays(rays)
