@@ -18,42 +18,49 @@ from simtest.scene.meshes.params import ColonParams, MeshError, _check_seed, _ma
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
 
 
-class _Colon:
-    """Closed form of the colon surface X(t, phi) = c(t) + r(t, phi) (cos phi e1 + sin phi e2)."""
+class _Meander:
+    """The colons' centre line ``c(u) = (A (sin(w u + px) - sin px), A bend_3d (sin(0.7 w u + py) - sin py), u)``,
+    ``A = p.bend_mm``, ``w = 2 pi / p.bend_wavelength_mm``, seeded phases ``px, py``: it starts at the origin."""
 
-    def __init__(self, p: ColonParams, seed: int) -> None:
-        self.p = p
-        rng = _rng(seed, "colon")
-        # Draw order is part of the format: do not reorder.
-        self.psi_x, self.psi_y, self.fold_phase, self.jitter_phase, self.taenia_phase = rng.uniform(0.0, 2.0 * math.pi,
-                                                                                                     size=5)
+    def __init__(self, p: Any, psi_x: float, psi_y: float) -> None:
+        self.p, self.psi_x, self.psi_y = p, psi_x, psi_y
         self.wx = 2.0 * math.pi / p.bend_wavelength_mm
         self.wy = 0.7 * self.wx
         self.ay = p.bend_mm * p.bend_3d
 
-    # centre line c(t) = (x(t), y(t), t), starting at the origin
-    def _c(self, t: np.ndarray) -> np.ndarray:
-        p = self.p
-        x = p.bend_mm * (np.sin(self.wx * t + self.psi_x) - math.sin(self.psi_x))
-        y = self.ay * (np.sin(self.wy * t + self.psi_y) - math.sin(self.psi_y))
-        return np.stack([x, y, t], axis=-1)
+    def curve(self, u: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``c, c', c'', c'''`` at parameters u (arrays of shape u.shape + (3,))."""
+        u = np.asarray(u, dtype=np.float64)
+        a, ay, wx, wy = self.p.bend_mm, self.ay, self.wx, self.wy
+        sx, cx = np.sin(wx * u + self.psi_x), np.cos(wx * u + self.psi_x)
+        sy, cy = np.sin(wy * u + self.psi_y), np.cos(wy * u + self.psi_y)
+        zero, one = np.zeros_like(u), np.ones_like(u)
+        c = np.stack([a * (sx - math.sin(self.psi_x)), ay * (sy - math.sin(self.psi_y)), u], -1)
+        c1 = np.stack([a * wx * cx, ay * wy * cy, one], -1)
+        c2 = np.stack([-a * wx**2 * sx, -ay * wy**2 * sy, zero], -1)
+        c3 = np.stack([-a * wx**3 * cx, -ay * wy**3 * cy, zero], -1)
+        return c, c1, c2, c3
 
-    def _dc(self, t: np.ndarray) -> np.ndarray:
-        dx = self.p.bend_mm * self.wx * np.cos(self.wx * t + self.psi_x)
-        dy = self.ay * self.wy * np.cos(self.wy * t + self.psi_y)
-        return np.stack([dx, dy, np.ones_like(t)], axis=-1)
+
+class _Colon(_Meander):
+    """Closed form of the colon surface X(t, phi) = c(t) + r(t, phi) (cos phi e1 + sin phi e2)."""
+
+    def __init__(self, p: ColonParams, seed: int) -> None:
+        rng = _rng(seed, "colon")
+        # Draw order is part of the format: do not reorder.
+        psi_x, psi_y, self.fold_phase, self.jitter_phase, self.taenia_phase = rng.uniform(0.0, 2.0 * math.pi, size=5)
+        super().__init__(p, psi_x, psi_y)
 
     def arclength(self, t: np.ndarray) -> np.ndarray:
         """Arc length of the centre line from t = 0 (Gauss-Legendre, 48 nodes: exact to ~1e-13)."""
         t = np.asarray(t, dtype=np.float64)
         nodes = 0.5 * t[..., None] * (1.0 + _GL_X)
-        speed = np.linalg.norm(self._dc(nodes), axis=-1)
+        speed = np.linalg.norm(self.curve(nodes)[1], axis=-1)
         return 0.5 * t * np.sum(_GL_W * speed, axis=-1)
 
     def frame(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Centre point, unit tangent, and normal-plane basis (e1, e2) with e2 = T x e1."""
-        c = self._c(t)
-        tan = self._dc(t)
+        c, tan = self.curve(t)[:2]
         tan = tan / np.linalg.norm(tan, axis=-1, keepdims=True)
         ref = np.array([1.0, 0.0, 0.0])
         e1 = ref - tan[..., :1] * tan
@@ -192,7 +199,7 @@ def colon_centerline(source: trimesh.Trimesh | Mapping[str, Any],
         # Newton on s(t) = target from a linear guess; ds/dt = |c'(t)| >= 1.
         t = s * (p.length_mm / total)
         for _ in range(50):
-            step = (colon.arclength(t) - s) / np.linalg.norm(colon._dc(t), axis=-1)
+            step = (colon.arclength(t) - s) / np.linalg.norm(colon.curve(t)[1], axis=-1)
             t = np.clip(t - step, 0.0, p.length_mm)
             if np.max(np.abs(step)) < 1e-12 * max(1.0, p.length_mm):
                 break

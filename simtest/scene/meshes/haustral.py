@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from simtest.scene.meshes.colon import _tube_faces
+from simtest.scene.meshes.colon import _Meander, _tube_faces
 from simtest.scene.meshes.curvature import curvature_from_derivatives
 from simtest.scene.meshes.files import _assemble, _generator_record
 from simtest.scene.meshes.jet import Jet, compose, constant, variable
@@ -47,7 +47,7 @@ _FRAME_STEP_MM = 0.5
 _FRAME_MARGIN_MM = 20.0
 
 
-class HaustralColon:
+class HaustralColon(_Meander):
     """Closed form of the haustral colon for one parameter set and seed (module notes).
 
     Parameters
@@ -57,14 +57,11 @@ class HaustralColon:
     """
 
     def __init__(self, p: HaustralParams, seed: int) -> None:
-        self.p = p
         rng = _rng(seed, "colon_haustral")
         # Draw order is part of the format: do not reorder.
-        (self.psi_x, self.psi_y, self.taenia_phase, self.diam_phase, self.fold_phase,
+        (psi_x, psi_y, self.taenia_phase, self.diam_phase, self.fold_phase,
          self.jitter_phase, self.height_phase) = rng.uniform(0.0, 2.0 * math.pi, size=7)
-        self.wx = 2.0 * math.pi / p.bend_wavelength_mm
-        self.wy = 0.7 * self.wx
-        self.ay = p.bend_mm * p.bend_3d
+        super().__init__(p, psi_x, psi_y)
         self.r0 = 0.5 * p.diameter_mm
         # taenia bands: exp(kappa (cos 3 dtheta - 1)) at half height over the width's angle
         half = 0.5 * p.taenia_width_mm / self.r0
@@ -82,20 +79,7 @@ class HaustralColon:
         self._nodes = np.arange(self.u_lo, self.u_hi + _FRAME_STEP_MM, _FRAME_STEP_MM)
         self._e1_nodes = self._integrate_frame()
 
-    # -- centre line and its rotation-minimising frame ------------------------------------
-    def curve(self, u: np.ndarray) -> tuple[np.ndarray, ...]:
-        """``c, c', c'', c'''`` at parameters u (arrays of shape u.shape + (3,))."""
-        u = np.asarray(u, dtype=np.float64)
-        a, ay, wx, wy = self.p.bend_mm, self.ay, self.wx, self.wy
-        sx, cx = np.sin(wx * u + self.psi_x), np.cos(wx * u + self.psi_x)
-        sy, cy = np.sin(wy * u + self.psi_y), np.cos(wy * u + self.psi_y)
-        zero, one = np.zeros_like(u), np.ones_like(u)
-        c = np.stack([a * (sx - math.sin(self.psi_x)), ay * (sy - math.sin(self.psi_y)), u], -1)
-        c1 = np.stack([a * wx * cx, ay * wy * cy, one], -1)
-        c2 = np.stack([-a * wx**2 * sx, -ay * wy**2 * sy, zero], -1)
-        c3 = np.stack([-a * wx**3 * cx, -ay * wy**3 * cy, zero], -1)
-        return c, c1, c2, c3
-
+    # -- centre line (:meth:`curve`, shared with the smooth colon) and its rotation-minimising frame --
     def tangent(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Unit tangent T and its derivatives T', T'' in u (closed form)."""
         _, c1, c2, c3 = self.curve(u)
