@@ -28,7 +28,7 @@ from simtest.simulate.truth import cylinder_highlight, plane_highlight, sphere_h
 __all__ = ["PlaneGeometry", "SphereGeometry", "CylinderGeometry", "SaddleGeometry", "MeshGeometry", "GeometrySpec",
            "GEOMETRY_TYPES", "GEOMETRY_KEYS", "GEOMETRY_KEY_ORDER", "plane_normal_cam", "rotation_from_z"]
 
-#: The kinds' model settings: frozen, unknown keys refused, NaN and infinity refused.
+#: The kinds' and the scene sections' model settings: frozen, unknown keys refused, NaN and infinity refused.
 _frozen = functools.partial(dataclass, frozen=True, config=CONFIG)
 
 

@@ -41,13 +41,12 @@ from typing import Annotated, Any, Literal, Mapping, get_args
 
 import tomli_w
 from pydantic import Field
-from pydantic.dataclasses import dataclass
 
 from simtest._checks import keyed_error
-from simtest._config import CONFIG, Floats, Int, Num, Str, Vec2, Vec3, parse_toml, validated
+from simtest._config import Floats, Int, Num, Str, Vec2, Vec3, parse_toml, validated
 from simtest.constants import MAX_SEED
 from simtest.scene.kinds import (GEOMETRY_KEY_ORDER, GEOMETRY_KEYS, GEOMETRY_TYPES, CylinderGeometry, GeometrySpec,
-                                 MeshGeometry, PlaneGeometry, SaddleGeometry, SphereGeometry)
+                                 MeshGeometry, PlaneGeometry, SaddleGeometry, SphereGeometry, _frozen)
 from simtest.resources import bundled_scene_path, data_root
 
 __all__ = ["SceneError", "CameraSpec", "LightSpec", "MaterialSpec", "GeometrySpec", "PlaneGeometry",
@@ -65,11 +64,8 @@ class SceneError(ValueError):
 Variant = Literal["auto", "llvm_ad_rgb", "cuda_ad_rgb"]
 RENDER_VARIANTS: tuple[str, ...] = get_args(Variant)
 
-#: The scene sections' model settings: frozen, unknown keys refused, NaN and infinity refused.
-_frozen = functools.partial(dataclass, frozen=True, config=CONFIG)
 _Channel = Annotated[Num, Field(gt=0.0, le=1.0)]  # a linear-RGB albedo: no black, no gain
-_Gain = Annotated[Num, Field(gt=0.0)]  # a white-balance gain: a channel never vanishes
-_Positive = Annotated[Num, Field(gt=0.0)]  # a length, mm
+_Positive = Annotated[Num, Field(gt=0.0)]  # a length (mm), or a white-balance gain: a channel never vanishes
 #: The tissues of simtest.render.tissue.TISSUE_ALBEDO.
 _Tissue = Literal["mucosa", "liver", "peritoneum", "gallbladder"]
 
@@ -344,7 +340,7 @@ class SensorSpec:
     auto_mean: Num = Field(0.25, gt=0.0, le=1.0)
     metering: Literal["field", "tissue"] = "field"
     auto_clip_percent: Num = Field(100.0, ge=0.0, le=100.0)
-    white_balance: tuple[_Gain, _Gain, _Gain] = (1.0, 1.0, 1.0)
+    white_balance: tuple[_Positive, _Positive, _Positive] = (1.0, 1.0, 1.0)
     tone: Literal["gamma", "srgb"] = "gamma"
     color_saturation: Num = Field(1.0, ge=0.0)
     vignetting: Num = Field(0.0, ge=0.0, lt=1.0)
@@ -500,10 +496,9 @@ def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> Scen
         raise _err(source, "material.diffuse_albedo",
                    "a conductor has no diffuse part; use material.base = \"plastic\" for tissue")
 
-    required, _ = GEOMETRY_KEYS[geo.type]
-    for f in dataclasses.fields(geo):
-        if f.name in required and getattr(geo, f.name) is None:
-            raise _err(source, f"geometry.{f.name}", f"missing (required for type {geo.type!r})")
+    for key in GEOMETRY_KEYS[geo.type][0]:  # the required keys, in field order
+        if getattr(geo, key) is None:
+            raise _err(source, f"geometry.{key}", f"missing (required for type {geo.type!r})")
     if geo.type == "cylinder" and geo.axis is not None and math.hypot(*geo.axis) == 0.0:
         raise _err(source, "geometry.axis", "is the zero vector")
     if geo.type == "mesh":  # geo.path is set: a required key, checked above
