@@ -323,23 +323,15 @@ def _ellipses_of(C: np.ndarray):
     angle = np.full(k, np.nan)
     if not ok.any():
         return centre, axes, angle, ok
-    C = C[ok]
-    c, f = centre[ok], f0[ok]
+    C, f = C[ok], f0[ok]
+    # -C has the same centre and the opposite f0: scaled so that A is positive definite, f < 0
     flip = np.trace(C[:, :2, :2], axis1=1, axis2=2) < 0
-    if flip.any():
-        Cf = -C[flip]
-        cf, _ = _solve_each(Cf[:, :2, :2], Cf[:, :2, 2])
-        c[flip] = -cf
-        f[flip] = Cf[:, 2, 2] + np.einsum("ki,ki->k", Cf[:, 2, :2], -cf)  # < 0 for a real ellipse
-        C = C.copy()
-        C[flip] = Cf
+    C, f = np.where(flip[:, None, None], -C, C), np.where(flip, -f, f)
     w, V = np.linalg.eigh(C[:, :2, :2])  # ascending: w[0] gives the major axis
     axes[ok] = np.sqrt(-f[:, None] / w)
     a = np.arctan2(V[:, 1, 0], V[:, 0, 0])
     a = np.where(a <= -np.pi / 2, a + np.pi, np.where(a > np.pi / 2, a - np.pi, a))
     angle[ok] = a
-    centre = centre.copy()
-    centre[ok] = c
     return centre, axes, angle, ok
 
 
