@@ -64,8 +64,11 @@ def _in_camera(w2c: np.ndarray, point_mm) -> np.ndarray:
 
 
 class _Kind:
-    """What a kind has unless it says otherwise: the default texture frame, no loader warning, no file."""
+    """What a kind has unless it says otherwise: the world frame, no triangles, the default texture frame, no
+    loader warning, no file."""
 
+    frame: ClassVar[str] = "world"
+    triangulated: ClassVar[bool] = False
     quiet_load: ClassVar[bool] = False
 
     def texture_axes(self) -> np.ndarray | None:
@@ -95,7 +98,6 @@ class PlaneGeometry(_Kind):
 
     type: ClassVar[str] = "plane"
     frame: ClassVar[str] = "camera"
-    triangulated: ClassVar[bool] = False
     tilt_deg: Num | None = Field(None, ge=0.0, lt=90.0)
     azimuth_deg: Num | None = None
     distance_mm: Num | None = Field(None, gt=0.0)
@@ -134,8 +136,6 @@ class SphereGeometry(_Kind):
     """
 
     type: ClassVar[str] = "sphere"
-    frame: ClassVar[str] = "world"
-    triangulated: ClassVar[bool] = False
     center_mm: Vec3 | None = None
     radius_mm: Num | None = Field(None, gt=0.0)
 
@@ -164,8 +164,6 @@ class CylinderGeometry(_Kind):
     """
 
     type: ClassVar[str] = "cylinder"
-    frame: ClassVar[str] = "world"
-    triangulated: ClassVar[bool] = False
     quiet_load: ClassVar[bool] = True  # float32 round-off in R diag(r, r, length) reads to Mitsuba as "shearing"
     center_mm: Vec3 | None = None
     radius_mm: Num | None = Field(None, gt=0.0)
@@ -235,7 +233,6 @@ class MeshGeometry(_Kind):
     """
 
     type: ClassVar[str] = "mesh"
-    frame: ClassVar[str] = "world"
     triangulated: ClassVar[bool] = True
     path: Str | None = None
     translate_mm: Vec3 | None = None
