@@ -194,8 +194,8 @@ def cone_axis(Cn) -> ConeAxis:
         If C' is not a real elliptic cone.
     """
     w, V = _cone_eigen(Cn)
-    axis, gap = _cone_axes_of(w[None], V[None])
-    return ConeAxis(axis=axis[0], eigenvalue_gap=float(gap[0]))
+    n = V[:, 2] / np.linalg.norm(V[:, 2], axis=-1, keepdims=True)
+    return ConeAxis(axis=np.where(n[2] > 0, -n, n), eigenvalue_gap=float((w[0] - w[1]) / (w[0] - w[2])))
 
 
 def circle_pose(Cn) -> CirclePose:
@@ -364,13 +364,6 @@ def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"C' is not a real elliptic cone: eigenvalues {w.tolist()} (need two of one sign and one of "
                          "the other)")
     return w[0], V[0]
-
-
-def _cone_axes_of(w: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cone axes (k, 3) facing the camera (n_z < 0) and eigenvalue gaps (k,) of :func:`_cone_eigen_many` output."""
-    gap = (w[:, 0] - w[:, 1]) / (w[:, 0] - w[:, 2])
-    n = V[:, :, 2] / np.linalg.norm(V[:, :, 2], axis=-1, keepdims=True)
-    return np.where(n[..., 2:] > 0, -n, n), gap
 
 
 def _circle_poses_of(w: np.ndarray, V: np.ndarray):
