@@ -335,35 +335,22 @@ def _ellipses_of(C: np.ndarray):
     return centre, axes, angle, ok
 
 
-def _cone_eigen_many(Cn: np.ndarray):
-    """Sign-normalised (l1 >= l2 > 0 > l3) eigenvalues (k, 3), eigenvectors (k, 3, 3) and elliptic mask (k,).
-
-    Each cone is first made symmetric and scaled to unit Frobenius norm (non-finite where it is zero).
-    """
-    Cn = 0.5 * (Cn + np.swapaxes(Cn, 1, 2))
-    Cn = Cn / np.sqrt(np.einsum("kij,kij->k", Cn, Cn))[:, None, None]
-    finite = np.isfinite(Cn).all(axis=(1, 2))
-    w, V = np.linalg.eigh(Cn if finite.all() else np.where(finite[:, None, None], Cn, np.eye(3)))
-    eps = TOL.conic_degenerate_rel
-    n_pos = np.sum(w > eps, axis=1)
-    n_neg = np.sum(w < -eps, axis=1)
-    flip = (n_pos == 1) & (n_neg == 2)
-    ok = finite & (flip | ((n_pos == 2) & (n_neg == 1)))
-    w = np.where(flip[:, None], -w[:, ::-1], w)
-    V = np.where(flip[:, None, None], V[:, :, ::-1], V)
-    # w ascending after eigh: now w = (l3 < 0 < l2 <= l1) in ascending order.
-    return w[:, ::-1], V[:, :, ::-1], ok
-
-
 def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_cone_eigen_many` of one cone; ValueError if it is not real and elliptic."""
+    """Eigenvalues (3,), sign-normalised to l1 >= l2 > 0 > l3, and eigenvectors (3, 3) of C' made symmetric and
+    scaled to unit Frobenius norm; ValueError if it is not a real elliptic cone."""
     Cn = _check_conic(Cn, "C'")
-    w, V, ok = _cone_eigen_many(Cn[None])
-    if not ok[0]:
+    S = Cn / np.sqrt(np.einsum("ij,ij->", Cn, Cn))  # non-finite (with a numpy warning) for a zero cone
+    finite = bool(np.isfinite(S).all())
+    w, V = np.linalg.eigh(S if finite else np.eye(3))  # ascending
+    eps = TOL.conic_degenerate_rel
+    signs = (int(np.sum(w > eps)), int(np.sum(w < -eps)))
+    if not finite or signs not in ((2, 1), (1, 2)):
         w = np.linalg.eigvalsh(Cn / np.linalg.norm(Cn))
         raise ValueError(f"C' is not a real elliptic cone: eigenvalues {w.tolist()} (need two of one sign and one of "
                          "the other)")
-    return w[0], V[0]
+    if signs == (1, 2):  # -C': l3 < 0 < l2 <= l1 in ascending order
+        w, V = -w[::-1], V[:, ::-1]
+    return w[::-1], V[:, ::-1]
 
 
 def _circle_poses_of(w: np.ndarray, V: np.ndarray):
