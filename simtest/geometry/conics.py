@@ -116,7 +116,7 @@ def conic_kind(C) -> str:
     ValueError
         If C is not 3x3 or has non-finite entries.
     """
-    return _classify_many(_check_conic(C)[None])[0][0]
+    return _classify(_check_conic(C))[0]
 
 
 def conic_to_ellipse(C) -> Ellipse | None:
@@ -137,8 +137,7 @@ def conic_to_ellipse(C) -> Ellipse | None:
     ValueError
         If C is not 3x3 or has non-finite entries.
     """
-    centre, axes, angle, ok = _ellipses_of(_check_conic(C)[None])
-    return Ellipse(center=centre[0], semi_axes=axes[0], angle_rad=float(angle[0])) if ok[0] else None
+    return _ellipse(_check_conic(C))
 
 
 def normalised_conic(C, K) -> np.ndarray:
@@ -273,66 +272,51 @@ def _solve_each(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return x, ok
 
 
-_KINDS = ("ellipse", "imaginary", "hyperbola", "degenerate")
-
-
-def _classify_many(C: np.ndarray):
-    """:func:`conic_kind` of a stack (k, 3, 3): ``(kinds, unit-norm C, centres (k, 2), f0 (k,))``, NaN without centre.
+def _classify(C: np.ndarray) -> tuple[str, np.ndarray, np.ndarray, float]:
+    """:func:`conic_kind` of a symmetric conic: ``(kind, C at unit norm, centre (2,), f0)``, NaN without a centre.
 
     The test is made in the frame centred on the conic's centre, so it does not depend on where the curve lies.
     """
     eps = TOL.conic_degenerate_rel
-    norm = np.sqrt(np.einsum("kij,kij->k", C, C))
-    zero = norm == 0
-    C = C / np.where(zero, 1.0, norm)[:, None, None]
-    A2 = C[:, :2, :2]
-    lam = np.linalg.eigvalsh(A2)
-    lam_max = np.abs(lam).max(axis=1)
-    no_centre = zero | (lam_max <= eps) | (np.abs(lam[:, 0] * lam[:, 1]) <= eps * lam_max**2)
-    centre, regular = _solve_each(np.where(no_centre[:, None, None], np.eye(2), A2) if no_centre.any() else A2,
-                                  C[:, :2, 2])
-    centre = -centre
-    no_centre |= ~regular
-    cross = np.einsum("ki,ki->k", C[:, 2, :2], centre)
-    f0 = C[:, 2, 2] + cross
+    norm = np.sqrt(np.einsum("ij,ij->", C, C))
+    no_centre = (np.full(2, np.nan), np.nan)
+    if norm == 0:
+        return "degenerate", C, *no_centre
+    C = C / norm
+    lam = np.linalg.eigvalsh(C[:2, :2])
+    lam_max = np.abs(lam).max()
+    centre = None
+    if lam_max > eps and np.abs(lam[0] * lam[1]) > eps * lam_max**2:
+        try:
+            centre = -np.linalg.solve(C[:2, :2], C[:2, 2])
+        except np.linalg.LinAlgError:
+            pass
+    if centre is None:  # a parabola, or parallel lines / a line (det C ~ 0)
+        sv = np.linalg.svd(C, compute_uv=False)
+        return "degenerate" if sv[-1] <= eps * sv[0] else "parabola", C, *no_centre
+    cross = np.einsum("i,i->", C[2, :2], centre)
+    f0 = C[2, 2] + cross
     # f0 is a difference of terms of size |C22|: compare with the larger of that and the quadratic part
-    point = np.abs(f0) <= eps * np.maximum(lam_max, np.abs(C[:, 2, 2]) + np.abs(cross))
-    hyperbola = lam[:, 0] * lam[:, 1] < 0
-    sign = np.where(lam[:, 0] > 0, 1.0, -1.0)
-    # 0 ellipse, 1 imaginary, 2 hyperbola, 3 degenerate (a point or two crossing lines)
-    code = np.where(point, 3, np.where(hyperbola, 2, np.where(sign * f0 < 0, 0, 1)))
-    kinds = [_KINDS[c] for c in code.tolist()]
-    if no_centre.any():
-        for i in np.flatnonzero(no_centre):  # a parabola, or parallel lines / a line (det C ~ 0)
-            if zero[i]:
-                kinds[i] = "degenerate"
-            else:
-                sv = np.linalg.svd(C[i], compute_uv=False)
-                kinds[i] = "degenerate" if sv[-1] <= eps * sv[0] else "parabola"
-        centre[no_centre] = np.nan
-        f0[no_centre] = np.nan
-    return kinds, C, centre, f0
+    if np.abs(f0) <= eps * np.maximum(lam_max, np.abs(C[2, 2]) + np.abs(cross)):
+        kind = "degenerate"  # a point or two crossing lines
+    elif lam[0] * lam[1] < 0:
+        kind = "hyperbola"
+    else:
+        kind = "ellipse" if (1.0 if lam[0] > 0 else -1.0) * f0 < 0 else "imaginary"
+    return kind, C, centre, f0
 
 
-def _ellipses_of(C: np.ndarray):
-    """Centres (k, 2), semi-axes (k, 2), angles (k,) rad and real-ellipse mask (k,) of a stack of conics."""
-    kinds, C, centre, f0 = _classify_many(C)
-    ok = np.array([kd == "ellipse" for kd in kinds], dtype=bool)
-    k = len(C)
-    axes = np.full((k, 2), np.nan)
-    angle = np.full(k, np.nan)
-    if not ok.any():
-        return centre, axes, angle, ok
-    C, f = C[ok], f0[ok]
-    # -C has the same centre and the opposite f0: scaled so that A is positive definite, f < 0
-    flip = np.trace(C[:, :2, :2], axis1=1, axis2=2) < 0
-    C, f = np.where(flip[:, None, None], -C, C), np.where(flip, -f, f)
-    w, V = np.linalg.eigh(C[:, :2, :2])  # ascending: w[0] gives the major axis
-    axes[ok] = np.sqrt(-f[:, None] / w)
-    a = np.arctan2(V[:, 1, 0], V[:, 0, 0])
-    a = np.where(a <= -np.pi / 2, a + np.pi, np.where(a > np.pi / 2, a - np.pi, a))
-    angle[ok] = a
-    return centre, axes, angle, ok
+def _ellipse(C: np.ndarray) -> Ellipse | None:
+    """:func:`conic_to_ellipse` of a symmetric conic."""
+    kind, C, centre, f = _classify(C)
+    if kind != "ellipse":
+        return None
+    if np.trace(C[:2, :2]) < 0:  # -C has the same centre and the opposite f0: A positive definite, f < 0
+        C, f = -C, -f
+    w, V = np.linalg.eigh(C[:2, :2])  # ascending: w[0] gives the major axis
+    a = np.arctan2(V[1, 0], V[0, 0])
+    a = a + np.pi if a <= -np.pi / 2 else a - np.pi if a > np.pi / 2 else a
+    return Ellipse(center=centre, semi_axes=np.sqrt(-f / w), angle_rad=float(a))
 
 
 def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
