@@ -220,10 +220,17 @@ def circle_pose(Cn) -> CirclePose:
         If C' is not a real elliptic cone.
     """
     w, V = _cone_eigen(Cn)
-    normals, centres, ok = _circle_poses_of(w[None], V[None])
-    if not ok[0]:
+    l1, l2, l3 = w
+    sin_phi = np.sqrt(np.maximum(l1 - l2, 0.0) / (l1 - l3))
+    cos_phi = np.sqrt(np.maximum(l2 - l3, 0.0) / (l1 - l3))
+    Q = np.einsum("ij,j,lj->il", V, w, V)  # sign-normalised, unit cone
+    n = np.array([[1.0], [-1.0]]) * sin_phi * V[:, 0] + cos_phi * V[:, 2]
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    c, ok = _section_centres(np.stack([Q, Q]), n)
+    if not ok.all():
         raise np.linalg.LinAlgError("Singular matrix")
-    return CirclePose(normals=normals[0], centres=centres[0])
+    # facing the camera: n . c < 0 (not n_z < 0: a steep plane far off-axis faces it with n_z > 0)
+    return CirclePose(normals=np.where(np.einsum("ij,ij->i", n, c)[:, None] > 0, -n, n), centres=c)
 
 
 def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.ndarray]:
@@ -335,23 +342,6 @@ def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
     if signs == (1, 2):  # -C': l3 < 0 < l2 <= l1 in ascending order
         w, V = -w[::-1], V[:, ::-1]
     return w[::-1], V[:, ::-1]
-
-
-def _circle_poses_of(w: np.ndarray, V: np.ndarray):
-    """Normals N+, N- (k, 2, 3), centre directions (k, 2, 3) and defined mask (k,) of eigen-decompositions."""
-    l1, l2, l3 = w[:, 0], w[:, 1], w[:, 2]
-    sin_phi = np.sqrt(np.maximum(l1 - l2, 0.0) / (l1 - l3))
-    cos_phi = np.sqrt(np.maximum(l2 - l3, 0.0) / (l1 - l3))
-    Q = np.einsum("kij,kj,klj->kil", V, w, V)  # sign-normalised, unit cone
-    sgn = np.array([1.0, -1.0])
-    n = sgn[None, :, None] * sin_phi[:, None, None] * V[:, None, :, 0] + cos_phi[:, None, None] * V[:, None, :, 2]
-    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    k = len(w)
-    c, ok = _section_centres(np.repeat(Q, 2, axis=0), n.reshape(2 * k, 3))
-    c = c.reshape(k, 2, 3)
-    # facing the camera: n . c < 0 (not n_z < 0: a steep plane far off-axis faces it with n_z > 0)
-    facing = np.where(np.einsum("kij,kij->ki", n, c)[..., None] > 0, -n, n)
-    return facing, c, ok.reshape(k, 2).all(axis=1)
 
 
 def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
