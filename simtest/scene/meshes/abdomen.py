@@ -25,7 +25,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull
 
-from simtest.scene.meshes.curvature import FD_STEP_MM, implicit_curvature
+from simtest.scene.meshes.curvature import FD_STEP_MM, _principal_from_h_k, implicit_curvature
 from simtest.scene.meshes.files import _assemble
 from simtest.scene.meshes.liver import _fibonacci_sphere, _hull_faces, _wound, build_liver
 from simtest.scene.meshes.params import MeshError
@@ -94,8 +94,7 @@ def ellipsoid_curvature(points: np.ndarray, centre, axes) -> tuple[np.ndarray, n
     abc2 = float(np.prod(a)) ** 2
     K = 1.0 / (abc2 * h**4)
     H = (float(np.sum(a * a)) - np.sum(y * y, axis=1)) / (2.0 * abc2 * h**3)
-    root = np.sqrt(np.maximum(H * H - K, 0.0))
-    return g / h[:, None], H + root, H - root
+    return (g / h[:, None], *_principal_from_h_k(H, K))
 
 
 def _gallbladder(centre, axes, spacing_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
