@@ -104,15 +104,21 @@ class _Colon(_Meander):
         return np.interp(np.linspace(0.0, cum[-1], p.n_along), cum, t)
 
 
-def _tube_faces(n_along: int, n_around: int) -> np.ndarray:
-    """Triangles of a ring grid (ring-major vertex order), wound so face normals follow X_t x X_phi."""
+def _tube(pos: np.ndarray, nrm: np.ndarray, k1: np.ndarray, k2: np.ndarray,
+          centre: np.ndarray) -> tuple[trimesh.Trimesh, dict[str, list]]:
+    """The mesh of a ring grid (arrays of shape (n_along, n_around, ...), ring-major vertex order), its triangles
+    wound so face normals follow X_t x X_phi, and each ring's least and greatest distance from its centre point."""
+    n_along, n_around = pos.shape[:2]
     i, j = np.meshgrid(np.arange(n_along - 1), np.arange(n_around), indexing="ij")
     a = i * n_around + j
     b = (i + 1) * n_around + j
     c = i * n_around + (j + 1) % n_around
     d = (i + 1) * n_around + (j + 1) % n_around
     tris = [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([c, b, d], -1).reshape(-1, 3)]
-    return np.concatenate(tris).astype(np.int64)
+    faces = np.concatenate(tris).astype(np.int64)
+    mesh = _assemble(pos.reshape(-1, 3), faces, nrm.reshape(-1, 3), k1.ravel(), k2.ravel())
+    dist = np.linalg.norm(pos - centre[:, None, :], axis=-1)
+    return mesh, {"radius_min_mm": dist.min(axis=1).tolist(), "radius_max_mm": dist.max(axis=1).tolist()}
 
 
 def build_colon(seed: int, **params: Any) -> trimesh.Trimesh:
@@ -145,15 +151,11 @@ def build_colon(seed: int, **params: Any) -> trimesh.Trimesh:
     phi = np.arange(p.n_around) * (2.0 * math.pi / p.n_around)
     pos, nrm, k1, k2 = parametric_curvature(colon.surface, t[:, None], phi[None, :], FD_STEP_MM,
                                             FD_STEP_MM / p.radius_mm)
-    mesh = _assemble(pos.reshape(-1, 3), _tube_faces(p.n_along, p.n_around), nrm.reshape(-1, 3), k1.ravel(), k2.ravel())
-
     centre, tangent, _, _ = colon.frame(t)
-    dist = np.linalg.norm(pos - centre[:, None, :], axis=-1)
+    mesh, radii = _tube(pos, nrm, k1, k2, centre)
     mesh.metadata["generator"] = _generator_record("colon", seed, p)
     mesh.metadata["centerline"] = {"t": t.tolist(), "arclength_mm": colon.arclength(t).tolist(),
-                                   "points": centre.tolist(), "tangents": tangent.tolist(),
-                                   "radius_min_mm": dist.min(axis=1).tolist(),
-                                   "radius_max_mm": dist.max(axis=1).tolist()}
+                                   "points": centre.tolist(), "tangents": tangent.tolist(), **radii}
     return mesh
 
 

@@ -33,9 +33,9 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from simtest.scene.meshes.colon import _Meander, _tube_faces
+from simtest.scene.meshes.colon import _Meander, _tube
 from simtest.scene.meshes.curvature import curvature_from_derivatives
-from simtest.scene.meshes.files import _assemble, _generator_record
+from simtest.scene.meshes.files import _generator_record
 from simtest.scene.meshes.jet import Jet, compose, constant, variable
 from simtest.scene.meshes.params import HaustralParams, MeshError, _check_seed, _make_params, _rng
 
@@ -232,17 +232,14 @@ def build_haustral_colon(seed: int, **params: Any) -> trimesh.Trimesh:
     theta = np.arange(p.n_around) * (2.0 * math.pi / p.n_around)
     x = colon.surface_jet(v[:, None], theta[None, :])
     nrm, k1, k2 = curvature_from_derivatives(x.a, x.b, x.aa, x.ab, x.bb)
-    mesh = _assemble(x.v.reshape(-1, 3), _tube_faces(p.n_along, p.n_around), nrm.reshape(-1, 3), k1.ravel(), k2.ravel())
     centre, c1, _, _ = colon.curve(v)
-    dist = np.linalg.norm(x.v - centre[:, None, :], axis=-1)
+    mesh, radii = _tube(x.v, nrm, k1, k2, centre)
     mesh.metadata["generator"] = {
         **_generator_record("colon_haustral", seed, p), "function": "simtest.scene.meshes.build_haustral_colon",
         "curvature": "closed form; exact derivatives by second-order forward automatic differentiation (jets); "
                      "k positive where the surface bends away from its normal"}
     mesh.metadata["centerline"] = {"v": v.tolist(), "points": centre.tolist(),
-                                   "tangents": (c1 / np.linalg.norm(c1, axis=-1, keepdims=True)).tolist(),
-                                   "radius_min_mm": dist.min(axis=1).tolist(),
-                                   "radius_max_mm": dist.max(axis=1).tolist()}
+                                   "tangents": (c1 / np.linalg.norm(c1, axis=-1, keepdims=True)).tolist(), **radii}
     return mesh
 
 
