@@ -226,9 +226,7 @@ def circle_pose(Cn) -> CirclePose:
     Q = np.einsum("ij,j,lj->il", V, w, V)  # sign-normalised, unit cone
     n = np.array([[1.0], [-1.0]]) * sin_phi * V[:, 0] + cos_phi * V[:, 2]
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    c, ok = _section_centres(np.stack([Q, Q]), n)
-    if not ok.all():
-        raise np.linalg.LinAlgError("Singular matrix")
+    c = _section_centres(np.stack([Q, Q]), n)
     # facing the camera: n . c < 0 (not n_z < 0: a steep plane far off-axis faces it with n_z > 0)
     return CirclePose(normals=np.where(np.einsum("ij,ij->i", n, c)[:, None] > 0, -n, n), centres=c)
 
@@ -261,22 +259,6 @@ def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.
 
 #: The coordinate axes as tuples (helpers of :func:`plane_basis`).
 _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-
-
-def _solve_each(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``solve(A[i], b[i])`` for stacks (k, m, m), (k, m): solutions (k, m) (NaN where singular) and ok (k,)."""
-    try:
-        return np.linalg.solve(A, b[..., None])[..., 0], np.ones(len(A), dtype=bool)
-    except np.linalg.LinAlgError:  # one singular system: solve them one by one
-        x = np.full(b.shape, np.nan)
-        ok = np.zeros(len(A), dtype=bool)
-        for i in range(len(A)):
-            try:
-                x[i] = np.linalg.solve(A[i], b[i])
-                ok[i] = True
-            except np.linalg.LinAlgError:
-                pass
-        return x, ok
 
 
 def _classify(C: np.ndarray) -> tuple[str, np.ndarray, np.ndarray, float]:
@@ -344,8 +326,11 @@ def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
     return w[::-1], V[:, ::-1]
 
 
-def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit directions (k, 3) of the centres of the sections of cones Q by planes of normals n, and ok (k,)."""
+def _section_centres(Q: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Unit directions (k, 3) of the centres of the sections of cones Q by planes of normals n.
+
+    Raises ``np.linalg.LinAlgError("Singular matrix")`` where a section has no centre.
+    """
     # plane n.X = 1 as X = n + a u + b w, (u, w) the basis of plane_basis
     x, y, z = n[:, 0], n[:, 1], n[:, 2]
     near_x = np.abs(x) >= 0.9
@@ -358,10 +343,10 @@ def _section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarr
     BtQ = np.einsum("kia,kij->kaj", B, Q)
     M = BtQ @ B
     g = np.einsum("kaj,kj->ka", BtQ, n)
-    ab, ok = _solve_each(M, g)
+    ab = np.linalg.solve(M, g[..., None])[..., 0]
     X = n - np.einsum("kia,ka->ki", B, ab)
     X = X / np.linalg.norm(X, axis=1, keepdims=True)
-    return np.where(X[:, 2:] < 0, -X, X), ok
+    return np.where(X[:, 2:] < 0, -X, X)
 
 
 def project_circle(centre_mm, normal, radius_mm: float, K) -> np.ndarray:
