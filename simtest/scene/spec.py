@@ -408,16 +408,11 @@ class SceneSpec:
 _err = functools.partial(keyed_error, SceneError)
 
 
-def _validated(cls: Any, data: Any, source: str, prefix: str = ""):
-    """``data`` validated as ``cls``; a refusal is the one-line :class:`SceneError`."""
-    return validated(cls, data, SceneError, source, prefix)
-
-
 def _build_geometry(data: Any, source: str) -> GeometrySpec:
     """The geometry class of ``data["type"]`` (default "plane") built from the other keys (None: unset)."""
     if not isinstance(data, Mapping):
         raise _err(source, "geometry", f"expected a table, got {type(data).__name__} {data!r}")
-    kind = _validated(Str, data.get("type", "plane"), source, "geometry.type")
+    kind = validated(Str, data.get("type", "plane"), SceneError, source, "geometry.type")
     if kind not in GEOMETRY_TYPES:
         opts = ", ".join(repr(c) for c in GEOMETRY_TYPES)
         raise _err(source, "geometry.type", f"must be one of {opts}", kind)
@@ -431,7 +426,7 @@ def _build_geometry(data: Any, source: str) -> GeometrySpec:
             raise _err(source, f"geometry.{key}",
                        f"not a key of geometry type {kind!r} (keys: {', '.join(required + optional)})")
     own = {k: v for k, v in data.items() if k != "type" and v is not None}
-    return _validated(cls, own, source, "geometry")
+    return validated(cls, own, SceneError, source, "geometry")
 
 
 def _validate(spec: SceneSpec, source: str, base_dirs: tuple[Path, ...]) -> SceneSpec:
@@ -554,7 +549,7 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<dict>", base_dir: str 
     if "geometry" not in d:
         raise _err(source, "geometry", "missing section [geometry] (it needs at least `type`)")
     data = {**d, "geometry": _build_geometry(d["geometry"], source), "source": source}
-    spec = _validated(SceneSpec, data, source)
+    spec = validated(SceneSpec, data, SceneError, source)
     dirs = [Path(base_dir)] if base_dir is not None else []
     dirs.append(data_root())
     return _validate(spec, source, tuple(dirs))
