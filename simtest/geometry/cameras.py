@@ -54,8 +54,6 @@ def _image_size(size, where: str) -> tuple[int, int] | None:
     return int(size[0]), int(size[1])
 
 
-_finite_scalar = functools.partial(finite_number, error=IntrinsicsError)
-
 
 def _linear_rows(xy: np.ndarray, M: np.ndarray) -> np.ndarray:
     """``xy @ M.T`` for (N, 2) points, element by element, so each row's bits do not depend on N."""
@@ -472,18 +470,18 @@ class OmnidirectionalCamera(CameraModel):
     model = "omnidirectional"
 
     def __init__(self, cx, cy, a, c, d, e, image_size=None):
-        self.cx = _finite_scalar(cx, "cx")
-        self.cy = _finite_scalar(cy, "cy")
+        self.cx = finite_number(cx, "cx", IntrinsicsError)
+        self.cy = finite_number(cy, "cy", IntrinsicsError)
         a = list(a)
         if len(a) != 5:
             raise IntrinsicsError(f"a: need 5 coefficients a0..a4, got {len(a)}")
-        self.a = np.array([_finite_scalar(v, f"a{i}") for i, v in enumerate(a)])
+        self.a = np.array([finite_number(v, f"a{i}", IntrinsicsError) for i, v in enumerate(a)])
         self.a.setflags(write=False)
         if self.a[0] <= 0:
             raise IntrinsicsError(f"a0: must be > 0 (the focal length on the axis), got {self.a[0]}")
-        self.c = _finite_scalar(c, "c")
-        self.d = _finite_scalar(d, "d")
-        self.e = _finite_scalar(e, "e")
+        self.c = finite_number(c, "c", IntrinsicsError)
+        self.d = finite_number(d, "d", IntrinsicsError)
+        self.e = finite_number(e, "e", IntrinsicsError)
         self.A = np.array([[self.c, self.d], [self.e, 1.0]])
         if abs(np.linalg.det(self.A)) < 1e-9:
             raise IntrinsicsError(f"c, d, e: the stretch [[c, d], [e, 1]] is singular (c - d e = {np.linalg.det(self.A)})")

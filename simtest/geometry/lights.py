@@ -41,10 +41,6 @@ class LightRigError(ValueError):
     """A light or rig is invalid; the message names the light and the field."""
 
 
-def _number(value, where: str) -> float:
-    return finite_number(value, where, LightRigError)
-
-
 @dataclass(frozen=True)
 class Light:
     """One point light.
@@ -77,9 +73,9 @@ class Light:
             p = p.tolist()
         if not isinstance(p, (list, tuple)) or len(p) != 3:
             raise LightRigError(f"position_mm: must be [x, y, z] in mm, got {self.position_mm!r}")
-        pos = tuple(_number(v, f"position_mm[{i}]") for i, v in enumerate(p))
+        pos = tuple(finite_number(v, f"position_mm[{i}]", LightRigError) for i, v in enumerate(p))
         object.__setattr__(self, "position_mm", pos)
-        inten = _number(self.intensity, "intensity")
+        inten = finite_number(self.intensity, "intensity", LightRigError)
         if inten <= 0:
             raise LightRigError(f"intensity: must be > 0, got {self.intensity!r}")
         if not MIN_INTENSITY <= inten <= MAX_INTENSITY:
@@ -88,7 +84,7 @@ class Light:
         object.__setattr__(self, "intensity", inten)
         if self.falloff not in FALLOFFS:
             raise LightRigError(f"falloff: must be one of {list(FALLOFFS)}, got {self.falloff!r}")
-        m = _number(self.profile_exponent, "profile_exponent")
+        m = finite_number(self.profile_exponent, "profile_exponent", LightRigError)
         if m < 0:
             raise LightRigError(f"profile_exponent: must be >= 0, got {self.profile_exponent!r}")
         if m > MAX_PROFILE_EXPONENT:
