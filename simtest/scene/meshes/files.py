@@ -74,11 +74,8 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
     for key in ("k1", "k2"):
         if key not in mesh.vertex_attributes:
             raise MeshError(f"save_mesh: {path}: mesh has no vertex attribute {key!r}")
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    cols = [v, np.asarray(mesh.vertex_normals, dtype=np.float64),
-            np.asarray(mesh.vertex_attributes["k1"], dtype=np.float64)[:, None],
-            np.asarray(mesh.vertex_attributes["k2"], dtype=np.float64)[:, None]]
-    data = np.ascontiguousarray(np.concatenate(cols, axis=1), dtype="<f4")
+    cols = (mesh.vertices, mesh.vertex_normals, mesh.vertex_attributes["k1"], mesh.vertex_attributes["k2"])
+    data = np.ascontiguousarray(np.column_stack([np.asarray(c, dtype=np.float64) for c in cols]), dtype="<f4")
     faces = np.asarray(mesh.faces)
     face_rec = np.empty(len(faces), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
     face_rec["n"] = 3
@@ -87,13 +84,13 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> Path:
         "ply\nformat binary_little_endian 1.0\n"
         "comment simtest procedural mesh; units mm; k1_0 k2_0: principal curvatures 1/mm, "
         "positive where the surface bends away from its normal\n"
-        f"element vertex {len(v)}\n"
+        f"element vertex {len(data)}\n"
         + "".join(f"property float {name}\n" for name in _PLY_FIELDS)
         + f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
     )
     atomic_write_bytes(path, header.encode("ascii") + data.tobytes() + face_rec.tobytes())
     side = {key: mesh.metadata[key] for key in ("generator", "centerline") if key in mesh.metadata}
-    side.update(n_vertices=int(len(v)), n_faces=int(len(faces)), ply_vertex_properties=list(_PLY_FIELDS),
+    side.update(n_vertices=int(len(data)), n_faces=int(len(faces)), ply_vertex_properties=list(_PLY_FIELDS),
                 units="positions mm; k1, k2 1/mm (k1 >= k2, positive where bending away from N)")
     text = json.dumps(jsonable(side), indent=1, sort_keys=True)
     # One line per innermost list of numbers (a point, a tangent, a list of arc lengths).
