@@ -34,15 +34,15 @@ class _Meander:
         a, ay, wx, wy = self.p.bend_mm, self.ay, self.wx, self.wy
         sx, cx = np.sin(wx * u + self.psi_x), np.cos(wx * u + self.psi_x)
         sy, cy = np.sin(wy * u + self.psi_y), np.cos(wy * u + self.psi_y)
-        zero, one = np.zeros_like(u), np.ones_like(u)
+        zero = np.zeros_like(u)
         c = np.stack([a * (sx - math.sin(self.psi_x)), ay * (sy - math.sin(self.psi_y)), u], -1)
-        c1 = np.stack([a * wx * cx, ay * wy * cy, one], -1)
+        c1 = self.velocity(u)
         c2 = np.stack([-a * wx**2 * sx, -ay * wy**2 * sy, zero], -1)
         c3 = np.stack([-a * wx**3 * cx, -ay * wy**3 * cy, zero], -1)
         return c, c1, c2, c3
 
     def velocity(self, u: np.ndarray) -> np.ndarray:
-        """``c'`` alone, as :meth:`curve` computes it (the arc length's integrand: cheaper without the rest)."""
+        """``c'`` alone (the arc length's integrand: cheaper than :meth:`curve`)."""
         dx = self.p.bend_mm * self.wx * np.cos(self.wx * u + self.psi_x)
         dy = self.ay * self.wy * np.cos(self.wy * u + self.psi_y)
         return np.stack([dx, dy, np.ones_like(u)], axis=-1)
