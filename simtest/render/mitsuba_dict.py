@@ -97,18 +97,16 @@ def _bsdf_dict(spec: SceneSpec, light_pos: np.ndarray) -> dict[str, Any]:
 
 
 def mitsuba_scene_dict(spec: SceneSpec, *, light_pos_cam: np.ndarray | None = None,
-                       mesh_cam: dict[str, np.ndarray] | None = None, seed: int | None = None) -> dict[str, Any]:
+                       mesh_cam: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
     """Translate a scene spec into a Mitsuba scene dict in the camera frame (pure function).
 
     Parameters
     ----------
     spec : SceneSpec
     light_pos_cam : ndarray of shape (3,), optional
-        Light position in the camera frame, mm; default :func:`light_position_cam` with ``seed``.
+        Light position in the camera frame, mm; default :func:`light_position_cam` with ``spec.render.seed``.
     mesh_cam : dict, optional
         For mesh and saddle geometry (required there): ``vertices`` (V, 3), ``normals`` (V, 3), ``faces`` (F, 3).
-    seed : int, optional
-        Seed of the light draw when ``light_pos_cam`` is None (default ``spec.render.seed``).
 
     Returns
     -------
@@ -122,7 +120,7 @@ def mitsuba_scene_dict(spec: SceneSpec, *, light_pos_cam: np.ndarray | None = No
     """
     cam, geo = spec.camera, spec.geometry
     if light_pos_cam is None:
-        light_pos_cam = light_position_cam(spec.light, spec.render.seed if seed is None else seed)
+        light_pos_cam = light_position_cam(spec.light, spec.render.seed)
     light_pos_cam = np.asarray(light_pos_cam, dtype=np.float64)
     w2c = np.linalg.inv(cam_to_world_matrix(cam))
 

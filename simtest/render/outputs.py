@@ -10,8 +10,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from simtest._io import replace_output_folder
-from simtest._io import check_output_folder as _check_output_folder
+from simtest._io import check_output_folder, replace_output_folder
 from simtest.geometry.camera_file import save_camera, save_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.geometry.lights import Light, LightRig
@@ -128,19 +127,9 @@ class RenderResult:
         falloff = "none" if self.spec.light.falloff == "cancel" else "inverse_square"
         return LightRig((Light(tuple(float(x) for x in self.light_pos), self.spec.light.intensity, falloff),))
 
-    @property
-    def gray(self) -> np.ndarray:
-        """The linear image (already single-channel)."""
-        return self.linear
-
 
 #: File names of one render's output set (``write_render``)
 RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json", "frame.png")
-
-
-def check_output_folder(out: str | Path, option: str = "--out") -> None:
-    """Raise :class:`~simtest._io.OutputFolderError` unless ``out`` is new, empty or holds only :data:`RENDER_FILES`."""
-    _check_output_folder(out, RENDER_FILES, option)
 
 
 def _light_dict(light: Light) -> dict:
@@ -175,7 +164,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
         If writing fails (``out_dir`` then keeps its previous content, or does not exist).
     """
     out = Path(out_dir).absolute()
-    check_output_folder(out)
+    check_output_folder(out, RENDER_FILES)
     names = dict(zip(("image", "intrinsics", "ground_truth", "highlights", "camera", "frame"), RENDER_FILES))
     img = result.sensor
     pil = Image.fromarray(img, mode="L") if img.dtype == np.uint8 else Image.fromarray(img.astype(np.uint16))

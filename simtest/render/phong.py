@@ -99,8 +99,7 @@ def _make_class():
 def register() -> None:
     """Register ``simtest_phong`` for the current Mitsuba variant (once per variant)."""
     variant = mi.variant()
-    if variant in _registered:
-        return
-    cls = _make_class()  # bound to the current variant's mi.BSDF
-    mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
-    _registered.add(variant)
+    if variant not in _registered:
+        cls = _make_class()  # bound to the current variant's mi.BSDF
+        mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
+        _registered.add(variant)

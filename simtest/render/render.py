@@ -122,9 +122,7 @@ def render_scene(spec: SceneSpec, *, seed: int | None = None, variant: str | Non
         scene, pose = _mitsuba_scene(spec, light_pos, variant)
         image = mi.render(scene, spp=spec.render.spp, seed=seed)
         # a view of Dr.Jit's host memory (only new arrays derived from it are returned)
-        out = np.asarray(image)
-        if out.dtype != np.float32:
-            out = out.astype(np.float32)
+        out = np.asarray(image, dtype=np.float32)
         alpha = out[..., 3]
         nn, pp = out[..., 4:7], out[..., 7:10]
         nlen = np.sqrt(np.einsum("ijk,ijk->ij", nn, nn))

@@ -53,7 +53,8 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
     # asynchronously) while this thread computes the truth maps and the highlight search's starts
     centre = wavefront.cast(scene, _pixel_rays(model), later=True)
     spp = spec.render.spp
-    shaded, dark = _shaded_pixels(spec, W, H)
+    stop = _field_stop(spec, W, H)
+    shaded, dark = _shaded_pixels(stop, W * H)
     pending, covered = [], []
     for b0 in range(0, len(shaded), BLOCK_PIXELS):
         run = shaded[b0:b0 + BLOCK_PIXELS]
@@ -68,12 +69,9 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         rays = wavefront.model_rays(model, sample_positions(spp, W, 0, 0, seed, pixels=dark[b0:b0 + BLOCK_PIXELS]))
         covered.append(wavefront.coverage(scene, rays, spp=spp, defer=True))
     c = centre()
-    stop = _field_stop(spec, W, H)
     mask, p, n = c["hit"].reshape(H, W), c["p"].reshape(H, W, 3), c["n"].reshape(H, W, 3)
     if stop is not None:  # no truth where the scope shows nothing
         mask = mask & stop
-        p = np.where(mask[..., None], p, np.nan)
-        n = np.where(mask[..., None], n, np.nan)
     del c, centre
     nan = np.float32(np.nan)
     position = np.where(mask[..., None], p, nan).astype(np.float32)
@@ -167,15 +165,14 @@ def _field_stop(spec: SceneSpec, W: int, H: int) -> np.ndarray | None:
     return field_stop_mask((H, W), sensor.field_stop, sensor.field_stop_radius)
 
 
-def _shaded_pixels(spec: SceneSpec, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
-    """Row-major indices of the pixels the endoscope renderer shades (inside the field stop), and of the others.
+def _shaded_pixels(stop: np.ndarray | None, n_pix: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row-major indices of the pixels the endoscope renderer shades (inside the field ``stop``), and of the others.
 
     Outside the stop no shading rays are traced (radiance 0, truth NaN, coverage computed as everywhere);
     a shaded pixel gets the samples of a full-frame render.
     """
-    stop = _field_stop(spec, W, H)
     if stop is None:
-        return np.arange(W * H, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        return np.arange(n_pix, dtype=np.int64), np.zeros(0, dtype=np.int64)
     inside = stop.ravel()
     return np.flatnonzero(inside), np.flatnonzero(~inside)
 

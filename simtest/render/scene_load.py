@@ -246,14 +246,13 @@ def clear_caches() -> None:
 
 def _load_dict(spec: SceneSpec, d: dict):
     mi = require("mitsuba")
+    level = mi.logger().log_level()
     if spec.geometry.quiet_load:  # a false warning on its transform
-        level = mi.logger().log_level()
         mi.set_log_level(mi.LogLevel.Error)
-        try:
-            return mi.load_dict(materialize(d))
-        finally:
-            mi.set_log_level(level)
-    return mi.load_dict(materialize(d))
+    try:
+        return mi.load_dict(materialize(d))
+    finally:
+        mi.set_log_level(level)
 
 
 def _cache_put(cache: dict, size: int, key: tuple, value) -> None:
