@@ -10,7 +10,6 @@ import json
 from pathlib import Path
 from typing import Optional
 
-import cv2
 import numpy as np
 import typer
 from PIL import Image
@@ -23,9 +22,8 @@ from simtest.constants import MAX_SEED
 from simtest.render.render import RENDER_FILES, RendererUnavailable, RenderInputError, render_scene, write_render
 from simtest.render.simfit import fit_scene, split_frames
 from simtest.render.simreal import (DARK_LEVEL, FACTOR_GOAL, REAL_SPLIT, at_height, banner_tiles, fit_figure,
-                                    frames_figure, glint_population, glint_sheet, lit_field,
+                                    frames_figure, glint_population, glint_sheet, lit_field, _read_rgb,
                                     sim_to_real_figure, sim_to_real_table, split_indices, split_tables)
-from simtest.reconstruct.images import quiet_stderr
 from simtest.simulate.truth import HighlightTruthError
 from simtest.resources import data_root, real_banner_path
 from simtest.scene.spec import RENDER_VARIANTS, SceneError, load_scene, scene_to_toml
@@ -105,20 +103,12 @@ def _read_frames(paths: list[Path], option: str) -> tuple[list, list[str]]:
     for p in paths:
         if not p.is_file():
             fail(f"{option}: {p}: no such file (give real frames with {option})")
-        if "banner" in p.name:
-            try:
-                tiles = banner_tiles(p)
-            except ValueError as exc:
-                fail(f"{option}: {exc}")
-            frames += [f for _, f in tiles]
-            ids += [k for k, _ in tiles]
-        else:
-            with quiet_stderr():  # libpng's own lines: ours names the file
-                img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-            if img is None:
-                fail(f"{option}: {p}: not a readable image")
-            frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
-            ids.append(p.name)
+        try:
+            tiles = banner_tiles(p) if "banner" in p.name else [(p.name, _read_rgb(p))]
+        except ValueError as exc:
+            fail(f"{option}: {exc}")
+        frames += [f for _, f in tiles]
+        ids += [k for k, _ in tiles]
     if len({f.shape[0] for f in frames}) != 1:
         fail(f"{option}: the real frames must share one height")
     for f, i in zip(frames, ids):  # simreal's statistics are of the lit field
@@ -200,18 +190,16 @@ def simreal_command(
         fail(f"--scene: {scene_opt!r} and SCENE {scene_arg!r} disagree (give one)")
     scene = scene_opt or scene_arg or "colonoscope"
     target = check_out_folder(out, SIMREAL_FILES)
-    if fit:
-        if real:
-            fail("--real: not with --fit (the fit's held-out frames are its check)")
-        frames, ids = _read_frames(list(fit), "--fit")
-    else:
-        frames, ids = _read_frames(list(real or [real_banner_path()]), "--real")
+    if fit and real:
+        fail("--real: not with --fit (the fit's held-out frames are its check)")
+    paths = list(fit or real or [real_banner_path()])
+    frames, ids = _read_frames(paths, "--fit" if fit else "--real")
     try:
         spec = load_scene(scene)
     except SceneError as exc:
         fail(exc)
     if fit:
-        _simreal_fit(spec, frames, ids, list(fit), out, target, renders, polish,
+        _simreal_fit(spec, frames, ids, paths, out, target, renders, polish,
                      spec.render.seed if seed is None else seed)
         return
     try:
@@ -219,7 +207,6 @@ def simreal_command(
     except (RenderInputError, RendererUnavailable) as exc:  # bad input, or Mitsuba cannot run here
         fail(exc)
     frame = result.frame
-    paths = real or [real_banner_path()]
     tuning, held = split_indices(ids)
     tables = split_tables(frame, frames, tuning, held)
     rows = tables["all"]

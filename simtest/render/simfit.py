@@ -179,13 +179,9 @@ class FitResult:
     seed: int = 0
 
 
-#: Stable key of the noise draws of the fit's loss in ``SeedSequence([seed, NOISE_SEED_KEY])``.
+#: Stable key of the noise draws of the fit's loss in ``SeedSequence([seed, NOISE_SEED_KEY])`` (after the
+#: render's own seed, :func:`render_seeds_of`).
 NOISE_SEED_KEY = 0xF17
-
-
-def _noise_seeds(seed: int, k: int) -> list[int]:
-    """The loss's sensor-noise seeds: the render's own, then ``k - 1`` from ``SeedSequence([seed, NOISE_SEED_KEY])``."""
-    return render_seeds_of(seed, k, NOISE_SEED_KEY)
 
 
 def _pooled_stats(frames: list[np.ndarray], height: int) -> dict[str, float]:
@@ -206,9 +202,14 @@ def render_seeds_of(seed: int, k: int, key: int = RENDER_SEED_KEY) -> list[int]:
     return [int(seed)] + [int(x % MAX_SEED) for x in extra]
 
 
+def _develop_render(res, base_albedo, params: dict, spec: SceneSpec, seed: int) -> np.ndarray:
+    """:func:`develop`'s frame of a :class:`~simtest.render.render.RenderResult` (its tissue pixels metered)."""
+    return develop(res.rgb, res.specular, base_albedo, params, spec, seed, res.coverage >= TISSUE_COVERAGE)[0]
+
+
 def _seed_loss(develop_one: Callable, res, draws: int, height: int, ref: dict) -> float:
     """The loss of one render's frames, developed at ``draws`` noise seeds and pooled."""
-    frs = [develop_one(res, sd) for sd in _noise_seeds(res.seed, draws)]
+    frs = [develop_one(res, sd) for sd in render_seeds_of(res.seed, draws, NOISE_SEED_KEY)]
     return fit_loss(_pooled_stats(frs, height), ref)
 
 
@@ -257,7 +258,7 @@ def _fit_sensor(fitted: SceneSpec, d: dict, rseed: int, rseeds: list, draws: int
         q = _from_unit(x, SENSOR_BOUNDS)
 
         def dev(r, sd):
-            return develop(r.rgb, r.specular, alb, q, fitted, sd, r.coverage >= TISSUE_COVERAGE)[0]
+            return _develop_render(r, alb, q, fitted, sd)
 
         own_frame = dev(own, rseed)
         return (sum(_seed_loss(dev, r, draws, height, ref) for r in owns)
@@ -336,12 +337,11 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
                                   "material.film_variation": p["film_variation"], "material.albedo": list(base)})
 
     def inner(res, s: SceneSpec, start: dict, evals: int, draws: int) -> tuple[float, dict]:
-        seeds = _noise_seeds(rseed, draws)
-        tissue = res.coverage >= TISSUE_COVERAGE
+        seeds = render_seeds_of(rseed, draws, NOISE_SEED_KEY)
 
         def f(x):
             p = _from_unit(x, DEVELOP_BOUNDS)
-            frs = [develop(res.rgb, res.specular, base, p, s, sd, tissue)[0] for sd in seeds]
+            frs = [_develop_render(res, base, p, s, sd) for sd in seeds]
             return fit_loss(_pooled_stats(frs, height), ref) + _penalty(x)
 
         x = _nelder_mead(f, _to_unit(start, DEVELOP_BOUNDS), evals, 0.15)
@@ -391,9 +391,8 @@ def fit_scene(spec: SceneSpec, frames: list[np.ndarray], *, seed: int = 0, outer
 
     def f_full(x):
         q = _from_unit(x, DEVELOP_BOUNDS)
-        return sum(_seed_loss(lambda lin_res, sd: develop(lin_res.rgb, lin_res.specular, base, q, full, sd,
-                                                          lin_res.coverage >= TISSUE_COVERAGE)[0],
-                              r, draws, height, ref) for r in fulls) + _penalty(x)
+        return sum(_seed_loss(lambda r, sd: _develop_render(r, base, q, full, sd), r, draws, height, ref)
+                   for r in fulls) + _penalty(x)
 
     x = _nelder_mead(f_full, _to_unit(d, DEVELOP_BOUNDS), max(10, inner_evals * 2 // 3), 0.1)
     d = _from_unit(x, DEVELOP_BOUNDS)

@@ -259,6 +259,15 @@ def log_ratio(key: str, value: float, reference: float) -> float:
     return float(np.log((value + fl) / (reference + fl)))
 
 
+def _read_rgb(path: str | Path) -> np.ndarray:
+    """An image file as an RGB uint8 frame (H, W, 3); ValueError naming the file if it is not a readable image."""
+    with quiet_stderr():  # libpng's own lines: the error names the file
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError(f"{path}: not a readable image")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
 def banner_tiles(path: str | Path, tile_px: int = 280) -> list[tuple[str, np.ndarray]]:
     """The ``tile_px`` square tiles of a banner, row by row, as ``("<file>:r<row>c<col>", RGB uint8)``.
 
@@ -267,11 +276,7 @@ def banner_tiles(path: str | Path, tile_px: int = 280) -> list[tuple[str, np.nda
     ValueError
         If the file cannot be read as an image.
     """
-    with quiet_stderr():  # the error names the file
-        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise ValueError(f"{path}: not a readable image")
-    img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    img = _read_rgb(path)
     H, W = img.shape[:2]
     name = Path(path).name
     return [(f"{name}:r{r // tile_px}c{c // tile_px}", img[r:r + tile_px, c:c + tile_px].copy())
