@@ -25,7 +25,7 @@ from simtest.scene.spec import SceneSpec
 
 __all__ = ["COLONOSCOPE_GUIDE_OFFSET_MM", "LAPAROSCOPE_RING_RADIUS_MM", "GUIDE_PROFILE_EXPONENT", "RAY_SEED_KEY",
            "camera_model", "colonoscope_rig", "cf_h190_rig", "guide_radius_mm", "CF_H190_GUIDE_OFFSET_MM",
-           "CF_H190_GUIDE_DIAMETER_MM", "CF_H190_GAMMA", "light_rig", "uses_endoscope", "laparoscope_rig",
+           "CF_H190_GUIDE_DIAMETER_MM", "light_rig", "uses_endoscope", "laparoscope_rig",
            "scaled_omnidirectional", "sample_positions"]
 
 #: Distance from the lens centre to each of the colonoscope's two light guides, mm. An assumption: a tip
@@ -43,8 +43,6 @@ GUIDE_PROFILE_EXPONENT = 1.0
 CF_H190_GUIDE_OFFSET_MM = 3.3
 #: Diameter of each CF-H190 light guide's output face, mm: an assumption, not part of the calibration.
 CF_H190_GUIDE_DIAMETER_MM = 1.0
-#: The CF-H190's camera response gamma in the same calibration (``sensor.tone = "gamma"``).
-CF_H190_GAMMA = 2.2
 
 #: Stable key of the sub-pixel sample stream in ``SeedSequence([seed, RAY_SEED_KEY])``.
 RAY_SEED_KEY = 0xE4D05

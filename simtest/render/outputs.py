@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from simtest._io import check_output_folder, replace_output_folder
+from simtest._io import check_output_folder, jsonable, replace_output_folder
 from simtest.geometry.camera_file import save_camera, save_intrinsics
 from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.geometry.lights import Light, LightRig
@@ -132,15 +132,6 @@ class RenderResult:
 RENDER_FILES = ("image.png", "intrinsics.json", "ground_truth.npz", "highlights.json", "camera.json", "frame.png")
 
 
-def _light_dict(light: Light) -> dict:
-    """JSON-ready form of one light of a rig (every field of :class:`Light`; tuples as lists)."""
-    out = {}
-    for f in dataclasses.fields(light):
-        v = getattr(light, f.name)
-        out[f.name] = [float(x) for x in v] if isinstance(v, (tuple, list, np.ndarray)) else v
-    return out
-
-
 def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     """Write a render to ``out_dir`` as one set (:func:`simtest._io.replace_output_folder`).
 
@@ -172,7 +163,7 @@ def write_render(result: RenderResult, out_dir: str | Path) -> dict[str, Path]:
     rig = result.light_rig
     meta = {"scene": result.spec.name, "seed": result.seed, "variant": result.variant,
             "light_pos_mm": [float(x) for x in result.light_pos],
-            "lights": [{**_light_dict(light), "diameter_mm": 2.0 * guide_radius_mm(result.spec)}
+            "lights": [{**jsonable(dataclasses.asdict(light)), "diameter_mm": 2.0 * guide_radius_mm(result.spec)}
                        for light in rig.lights],
             "image_size": [W, H], "highlights": [{**h.to_dict(), "kind": "macro"} for h in result.highlights],
             "relief_highlights": [h.to_dict() for h in result.relief_highlights],

@@ -20,10 +20,9 @@ from simtest.constants import MAX_SEED
 from simtest.render.endoscope import uses_endoscope
 from simtest.render.mitsuba_dict import cam_to_world_matrix, intrinsics_matrix, light_position_cam
 from simtest.render.outputs import RENDER_FILES, TISSUE_COVERAGE, RenderResult, write_render
-from simtest.render.rig_render import _render_endoscope
+from simtest.render.rig_render import _highlights, _render_endoscope, _sensor_image, visible_highlights
 from simtest.render.scene_load import (_RENDER_LOCK, RenderInputError, RendererUnavailable, _mitsuba_scene,
                                       choose_variant)
-from simtest.render.scene_truth import _highlights, _sensor_image, visible_highlights
 from simtest.scene.spec import SceneSpec
 
 __all__ = ["MAX_SEED", "RenderResult", "RendererUnavailable", "RenderInputError", "check_film_fits",

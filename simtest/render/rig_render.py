@@ -1,5 +1,7 @@
 """Endoscope renders (:func:`_render_endoscope`): light rigs and camera models
-(:mod:`simtest.render.endoscope`), shaded in wavefronts (:mod:`simtest.render.wavefront`)."""
+(:mod:`simtest.render.endoscope`), shaded in wavefronts (:mod:`simtest.render.wavefront`); and a render's
+highlights (:func:`_highlights`, :func:`visible_highlights`) and sensor image (:func:`_sensor_image`),
+shared with the pinhole renders of :mod:`simtest.render.render`."""
 
 from __future__ import annotations
 
@@ -11,15 +13,14 @@ import numpy as np
 from simtest.render.mitsuba_dict import cam_to_world_matrix, mitsuba_scene_dict
 from simtest.render import wavefront
 from simtest.render.endoscope import camera_model, guide_radius_mm, light_rig, sample_positions
-from simtest.render.sensor import LUMA_WEIGHTS, field_stop_mask
+from simtest.render.sensor import LUMA_WEIGHTS, apply_sensor, field_stop_mask, frame_luma, video_frame
 from simtest.render.tissue import relief_normal
-from simtest.render.truth import ReliefHighlight, mesh_highlight_candidates, relief_highlights
+from simtest.render.truth import ReliefHighlight, mesh_highlight_candidates, mesh_highlights, relief_highlights
 from simtest.scene.spec import SceneSpec
-from simtest.simulate.truth import HighlightTruth
+from simtest.simulate.truth import HighlightTruth, pixel_in_frame
 from simtest.render.outputs import TISSUE_COVERAGE, RenderResult
 from simtest.render.scene_load import (_PIXEL_RAYS, _SCENE_CACHE, _SCENE_CACHE_SIZE, _cache_put, _load_dict,
-                                       _mesh_in_camera, tissue_texture)
-from simtest.render.scene_truth import _highlights, _sensor_image, visible_highlights
+                                       _make_caster, _mesh_in_camera, tissue_texture)
 
 #: Pixels per wavefront of the endoscope renderer (times spp rays); the image does not depend on it
 BLOCK_PIXELS = 1 << 16
@@ -130,10 +131,7 @@ def _render_endoscope(spec: SceneSpec, seed: int, variant: str) -> RenderResult:
         found = _highlights(spec, res, light.position, K, None, None, cast=cast_uv, candidates=starts[i])
         for h in found:
             uvh = model.ray_to_pixel(h.bp_mm[None])[0] if h.bp_mm[2] > 0 else np.full(2, np.nan)
-            highlights.append(dataclasses.replace(
-                h, bp_px=uvh, light=i,
-                in_frame=bool(np.all(np.isfinite(uvh)) and -0.5 <= uvh[0] < W - 0.5
-                              and -0.5 <= uvh[1] < H - 0.5)))
+            highlights.append(dataclasses.replace(h, bp_px=uvh, light=i, in_frame=pixel_in_frame(uvh, (W, H))))
     highlights = [h for h in visible_highlights(highlights, specular) if _unoccluded(h, cast_uv)]
     glints: list[ReliefHighlight] = []
     if texture is not None and np.any(texture.relief_amp):
@@ -201,3 +199,67 @@ def _unoccluded(h: HighlightTruth, cast_uv) -> bool:
     c = cast_uv(np.asarray(h.bp_px, dtype=np.float64)[None])
     dist = float(np.linalg.norm(h.bp_mm))
     return bool(c["hit"][0]) and abs(float(c["t"][0]) - dist) <= OCCLUSION_REL * dist
+
+
+def _highlights(spec: SceneSpec, res: dict, light_pos, K, scene, pose, *, cast=None,
+                candidates=None) -> list[HighlightTruth]:
+    """Highlights of one light: closed forms for analytic shapes, a search on meshes.
+
+    ``cast`` (:data:`simtest.render.truth.Caster`) replaces the pinhole caster of ``scene``/``pose``;
+    ``candidates`` are the mesh search's start pixels when already found.
+    """
+    geo = spec.geometry
+    size = (spec.camera.width_px, spec.camera.height_px)
+    w2c = np.linalg.inv(cam_to_world_matrix(spec.camera))
+    if not geo.triangulated:  # plane, sphere, cylinder: closed forms (simtest.scene.kinds)
+        hl = geo.highlight(w2c, light_pos, K, size)
+        return [hl] if hl is not None else []
+    # mesh, saddle: the search
+    mesh = _mesh_in_camera(spec)
+    if cast is None:
+        cast = _make_caster(scene, K, pose)
+    return mesh_highlights(cast, res["normals_raw"], res["position_raw"], res["mask"], light_pos, K,
+                           mesh["vertices"], mesh["faces"], mesh["k1"], mesh["k2"], candidates=candidates)
+
+
+def _sensor_image(linear: np.ndarray, rgb: np.ndarray | None, spec: SceneSpec,
+                  seed: int, tissue: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """The sensor image (:func:`apply_sensor`, or the video frame's luma) and the video frame (or None)."""
+    if spec.sensor.output == "video":
+        frame = video_frame(rgb if rgb is not None else linear, spec.sensor, seed, tissue=tissue)
+        return frame_luma(frame), frame
+    return apply_sensor(linear, spec.sensor, seed), None
+
+
+def visible_highlights(highlights: list[HighlightTruth], specular: np.ndarray) -> list[HighlightTruth]:
+    """The highlights a camera can see: finite, in front of the camera, lit where in frame.
+
+    A brightest point found on the analytic surface or the mesh is dropped when its position or
+    normal is not finite, when it lies behind the camera (``z <= 0``: e.g. the nearest point of a
+    sphere the camera looks away from), or when it is in frame but its pixel carries no specular
+    light (a shadowed BP, or a light the visible side does not face).
+
+    Parameters
+    ----------
+    highlights : list of HighlightTruth
+    specular : ndarray of shape (H, W)
+        The render's specular-only linear image.
+
+    Returns
+    -------
+    list of HighlightTruth
+        The kept highlights, in their order.
+    """
+    H, W = specular.shape[:2]
+    out = []
+    for h in highlights:
+        if not (np.all(np.isfinite(h.bp_mm)) and np.all(np.isfinite(h.normal)) and np.all(np.isfinite(h.bp_px))):
+            continue
+        if h.bp_mm[2] <= 0.0:
+            continue
+        if h.in_frame:
+            u, v = int(round(h.bp_px[0])), int(round(h.bp_px[1]))
+            if 0 <= u < W and 0 <= v < H and not specular[v, u] > 0.0:
+                continue
+        out.append(h)
+    return out

@@ -204,14 +204,8 @@ def coverage(scene, d, *, spp: int = 1, defer: bool = False) -> np.ndarray | Pen
 
     Parameters
     ----------
-    scene : mitsuba.Scene
-        Built in the camera frame.
-    d : ndarray of shape (N, 3) or mitsuba.Vector3f
-        Unit ray directions, camera frame (:func:`model_rays`).
-    spp : int
-        Consecutive rays per pixel.
-    defer : bool
-        Queue the kernels and return a :class:`Pending` whose ``fetch()`` gives the result.
+    scene, d, spp, defer
+        As :func:`shade`.
 
     Returns
     -------
