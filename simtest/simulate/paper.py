@@ -258,7 +258,6 @@ class PaperSimulator:
 
     def _render_clean(self, L: np.ndarray):
         """Texture for light L (window placed per ``window_at_bp``), warped to the image."""
-
         p = self.params
         bp_plane = mirror_point(self.V, L)
         centre = bp_plane if p.window_at_bp else np.zeros(2)
