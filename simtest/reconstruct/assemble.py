@@ -204,9 +204,6 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
                                         selected, est.paper_selected_index, axis, est.eigenvalue_gap, fit.cone)
     # joint cone axes of the highlights with two or more good isophotes, in one batch
     multi = [d for d in dr if sum(r.status == OK for r in d.results) >= 2]
-    if not multi:
-        enclosed = _enclosed_counts(dr)
-        return [_finish(d, None, enclosed.get(id(d))) if type(d) is _Draft else d for d in drafts]
     cones, group = [], []
     for g, d in enumerate(multi):
         for r in d.results:
@@ -215,7 +212,7 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
                 cones.append(c if d.fitf.on_image_plane else d.fitf.R @ c @ d.fitf.R.T)
                 group.append(g)
     axes = joint_cone_axes(np.array(cones).reshape(-1, 3, 3), np.array(group, dtype=int),
-                           np.array([to_fit_frame(d.fitf, d.bp_ray) for d in multi]).reshape(-1, 3))
+                           np.array([to_fit_frame(d.fitf, d.bp_ray) for d in multi]).reshape(-1, 3)) if multi else ()
     joint_of = {id(d): (to_camera(d.fitf, j) if not isinstance(j, Failure) else None) for d, j in zip(multi, axes)}
     enclosed = _enclosed_counts(dr)
     return [_finish(d, joint_of.get(id(d)), enclosed.get(id(d))) if type(d) is _Draft else d for d in drafts]
@@ -330,13 +327,10 @@ def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimat
     primary = d.results[0]
     status, detail = primary.status, primary.detail
     if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
-        # the other BPs in the isophote's bounding box, tested even-odd (polygon_contains)
-        if enclosed is not None:
-            n_in = enclosed
-        elif isinstance(d.other_bps, _SortedBps):
-            n_in = int(count_enclosed([primary.points_uv], d.other_bps.uv, [d.own_bp], d.other_bps.u)[0])
-        else:
-            n_in = int(count_enclosed([primary.points_uv], d.other_bps, [d.own_bp])[0])
+        # the other BPs in the isophote's bounding box, tested even-odd (polygon_contains); other_bps
+        # is a frame's _SortedBps wherever it holds any
+        n_in = enclosed if enclosed is not None else int(
+            count_enclosed([primary.points_uv], d.other_bps.uv, [d.own_bp], d.other_bps.u)[0])
         if n_in:
             status, detail = "merged", f"the isophote at t = {primary.isovalue} encloses {n_in} other BP(s)"
     return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray, tuple(d.results), joint)

@@ -140,6 +140,7 @@ def estimate_from_conic(Cn: np.ndarray, bp_ray: np.ndarray) -> ConeEstimate | Fa
     return estimate_from_conics(Cn[None], np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
 
 
+@np.errstate(all="ignore")
 def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstimate | Failure]:
     """:func:`estimate_from_conic` of a stack of normalised conics, batched in closed form.
 
@@ -156,10 +157,48 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstim
         One per conic, in order (each from its own numbers only); ``Failure("pose_failed")`` where
         C' is not a real elliptic cone whose image is an ellipse.
     """
-    Cns = np.asarray(Cns, dtype=np.float64).reshape(-1, 3, 3)
+    cns = np.asarray(Cns, dtype=np.float64).reshape(-1, 3, 3)
     refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
-    with np.errstate(all="ignore"):
-        return _estimates(Cns, refs)
+    k = len(cns)
+    elliptic = _images_as_ellipse_many(cns)
+    sym = cns + cns.transpose(0, 2, 1)
+    unit_cones = sym / np.sqrt((sym * sym).sum(axis=2).sum(axis=1))[:, None, None]
+    q, l1, l2, l3, e1, e3, real = _unique_sign_axes(np.where(elliptic[:, None, None], unit_cones, _RIGHT_CONE))
+    # circle pose [2]: N+- = +-sin(phi) e1 + cos(phi) e3, each facing the camera against the ray to
+    # its circle's centre (n_z < 0 is not the same test)
+    sin_phi = np.sqrt(np.maximum(l1 - l2, 0.0) / (l1 - l3))
+    cos_phi = np.sqrt(np.maximum(l2 - l3, 0.0) / (l1 - l3))
+    n = (np.array([1.0, -1.0])[None, :, None] * (sin_phi[:, None] * e1)[:, None, :]
+         + (cos_phi[:, None] * e3)[:, None, :]).reshape(2 * k, 3)
+    n /= np.sqrt((n * n).sum(axis=1))[:, None]
+    centre, has_centre = _section_centres(np.repeat(q, 2, axis=0), n)
+    paper = (n * np.where((n * centre).sum(axis=1) > 0, -1.0, 1.0)[:, None]).reshape(k, 2, 3)
+    ray = -refs
+    paper = face_reference(paper, ray[:, None, :])
+    axis = face_reference(e3 * np.where(e3[:, 2] > 0, -1.0, 1.0)[:, None], ray)
+    gap = ((l1 - l2) / (l1 - l3)).tolist()
+    idx = select_paper_normal(paper, refs)
+    ok = elliptic & real & has_centre.reshape(k, 2).all(axis=1)
+    finite = np.isfinite(paper).all(axis=(1, 2)) & np.isfinite(axis).all(axis=1)
+    selected = paper[np.arange(k), idx]
+    if (ok & finite).all():
+        return [ConeEstimate(p, sel, i, a, g) for p, sel, i, a, g in zip(paper, selected, idx.tolist(), axis, gap)]
+    out: list = []
+    for j in range(k):
+        if not elliptic[j]:
+            out.append(Failure("pose_failed", "the normalised conic is not an ellipse (hyperbola, parabola)"))
+        elif not real[j]:
+            c = 0.5 * (cns[j] + cns[j].T)
+            out.append(Failure("pose_failed", f"C' is not a real elliptic cone: eigenvalues "
+                               f"{np.linalg.eigvalsh(c / np.linalg.norm(c)).tolist()} "
+                               "(need two of one sign and one of the other)"))
+        elif not ok[j]:
+            out.append(Failure("pose_failed", "Singular matrix"))
+        elif not finite[j]:
+            out.append(Failure("pose_failed", "non-finite normal"))
+        else:
+            out.append(ConeEstimate(paper[j], selected[j], int(idx[j]), axis[j], gap[j]))
+    return out
 
 
 def _unique_sign_axes(s: np.ndarray):
@@ -226,50 +265,6 @@ def _section_centres(q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return x * np.where(x[:, 2] < 0, -1.0, 1.0)[:, None], det != 0
 
 
-def _estimates(cns: np.ndarray, refs: np.ndarray) -> list[ConeEstimate | Failure]:
-    """:func:`estimate_from_conics` of (k, 3, 3), (k, 3), numpy's warnings off."""
-    k = len(cns)
-    elliptic = _images_as_ellipse_many(cns)
-    sym = cns + cns.transpose(0, 2, 1)
-    unit_cones = sym / np.sqrt((sym * sym).sum(axis=2).sum(axis=1))[:, None, None]
-    q, l1, l2, l3, e1, e3, real = _unique_sign_axes(np.where(elliptic[:, None, None], unit_cones, _RIGHT_CONE))
-    # circle pose [2]: N+- = +-sin(phi) e1 + cos(phi) e3, each facing the camera against the ray to
-    # its circle's centre (n_z < 0 is not the same test)
-    sin_phi = np.sqrt(np.maximum(l1 - l2, 0.0) / (l1 - l3))
-    cos_phi = np.sqrt(np.maximum(l2 - l3, 0.0) / (l1 - l3))
-    n = (np.array([1.0, -1.0])[None, :, None] * (sin_phi[:, None] * e1)[:, None, :]
-         + (cos_phi[:, None] * e3)[:, None, :]).reshape(2 * k, 3)
-    n /= np.sqrt((n * n).sum(axis=1))[:, None]
-    centre, has_centre = _section_centres(np.repeat(q, 2, axis=0), n)
-    paper = (n * np.where((n * centre).sum(axis=1) > 0, -1.0, 1.0)[:, None]).reshape(k, 2, 3)
-    ray = -refs
-    paper = face_reference(paper, ray[:, None, :])
-    axis = face_reference(e3 * np.where(e3[:, 2] > 0, -1.0, 1.0)[:, None], ray)
-    gap = ((l1 - l2) / (l1 - l3)).tolist()
-    idx = select_paper_normal(paper, refs)
-    ok = elliptic & real & has_centre.reshape(k, 2).all(axis=1)
-    finite = np.isfinite(paper).all(axis=(1, 2)) & np.isfinite(axis).all(axis=1)
-    selected = paper[np.arange(k), idx]
-    if (ok & finite).all():
-        return [ConeEstimate(p, sel, i, a, g) for p, sel, i, a, g in zip(paper, selected, idx.tolist(), axis, gap)]
-    out: list = []
-    for j in range(k):
-        if not elliptic[j]:
-            out.append(Failure("pose_failed", "the normalised conic is not an ellipse (hyperbola, parabola)"))
-        elif not real[j]:
-            c = 0.5 * (cns[j] + cns[j].T)
-            out.append(Failure("pose_failed", f"C' is not a real elliptic cone: eigenvalues "
-                               f"{np.linalg.eigvalsh(c / np.linalg.norm(c)).tolist()} "
-                               "(need two of one sign and one of the other)"))
-        elif not ok[j]:
-            out.append(Failure("pose_failed", "Singular matrix"))
-        elif not finite[j]:
-            out.append(Failure("pose_failed", "non-finite normal"))
-        else:
-            out.append(ConeEstimate(paper[j], selected[j], int(idx[j]), axis[j], gap[j]))
-    return out
-
-
 def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
     """Least-squares common axis of several normalised conics (nested isophotes; module docstring).
 
@@ -295,6 +290,7 @@ def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
                            np.asarray(bp_ray, dtype=np.float64).reshape(1, 3))[0]
 
 
+@np.errstate(all="ignore")
 def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray) -> list[np.ndarray | Failure]:
     """:func:`joint_cone_axis` of several groups of conics at once (each group from its own conics only).
 
@@ -315,12 +311,6 @@ def joint_cone_axes(cns: np.ndarray, group: np.ndarray, bp_rays: np.ndarray) -> 
     cns = np.asarray(cns, dtype=np.float64).reshape(-1, 3, 3)
     group = np.asarray(group, dtype=int)
     refs = np.asarray(bp_rays, dtype=np.float64).reshape(-1, 3)
-    with np.errstate(all="ignore"):
-        return _joint_axes(cns, group, refs)
-
-
-def _joint_axes(cns: np.ndarray, group: np.ndarray, refs: np.ndarray) -> list[np.ndarray | Failure]:
-    """:func:`joint_cone_axes`, numpy's warnings off."""
     g = len(refs)
     elliptic = _images_as_ellipse_many(cns)
     sym = 0.5 * (cns + cns.transpose(0, 2, 1))

@@ -176,19 +176,9 @@ def fit_stacked(pts: np.ndarray, counts: np.ndarray) -> list[EllipseFit | Failur
     counts = np.asarray(counts, dtype=np.int64)
     pts = np.asarray(pts, dtype=np.float64)
     few = counts < MIN_FIT_POINTS
-    if not few.any():
-        with np.errstate(all="ignore"):
-            return _fit_stack(pts, counts) if len(counts) else []
-    out: list = [None] * len(counts)
-    for i in np.flatnonzero(few).tolist():
-        out[i] = Failure("too_few_points", f"{counts[i]} points < {MIN_FIT_POINTS}")
-    todo = np.flatnonzero(~few)
-    if len(todo):
-        with np.errstate(all="ignore"):
-            fits = _fit_stack(pts[np.repeat(~few, counts)], counts[todo])
-        for i, f in zip(todo.tolist(), fits):
-            out[i] = f
-    return out
+    fits = iter(() if few.all() else _fit_stack(pts[np.repeat(~few, counts)] if few.any() else pts, counts[~few]))
+    return [Failure("too_few_points", f"{c} points < {MIN_FIT_POINTS}") if f else next(fits)
+            for f, c in zip(few.tolist(), counts.tolist())]
 
 
 #: Degree i + j of each monomial x^i y^j (:data:`_MONOMIALS`), and where x^2, y^2 are among them.
@@ -307,6 +297,7 @@ def _ellipse_params(c: np.ndarray):
     return np.column_stack([cu, cv]), axes, angle, ok
 
 
+@np.errstate(all="ignore")
 def _fit_stack(pts: np.ndarray, n: np.ndarray) -> list[EllipseFit | Failure]:
     """The fits of :func:`fit_stacked`, set j having ``n[j]`` >= 6 points."""
     k = len(n)
