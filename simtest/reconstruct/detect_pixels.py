@@ -116,14 +116,20 @@ def _gray_native(image: np.ndarray) -> np.ndarray:
 
 def _gray_and_grey(image: np.ndarray) -> tuple[np.ndarray, bool | None]:
     """:func:`_gray_native` of an image and whether its R, G and B are equal (None: not asked, not 8-bit RGB)."""
-    if image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8:
-        rows = image[:: max(1, image.shape[0] // 16)]
-        if not (np.array_equal(rows[..., 0], rows[..., 1]) and np.array_equal(rows[..., 0], rows[..., 2])):
-            return _gray_native(image), False
-        gray = _gray_native(image)
-        back = cv2.cvtColor(gray, cv2.COLOR_GRAY2RGB)
-        return gray, bool(cv2.norm(np.ascontiguousarray(image), back, cv2.NORM_INF) == 0)
-    return _gray_native(image), None
+    asked = image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8
+    return _gray_native(image), _is_gray(image) if asked else None
+
+
+def _is_gray(img: np.ndarray) -> bool:
+    """Whether R = G = B at every pixel of an (H, W, C >= 3) image (a NaN is no match)."""
+    rows = img[:: max(1, img.shape[0] // 16)]  # about 16 rows: speed only, the answer is the same
+    if not (np.array_equal(rows[..., 0], rows[..., 1]) and np.array_equal(rows[..., 0], rows[..., 2])):
+        return False
+    if img.shape[2] == 3 and img.size and img.dtype.type in (np.uint8, np.uint16):
+        img = np.ascontiguousarray(img)
+        back = cv2.cvtColor(cv2.extractChannel(img, 0), cv2.COLOR_GRAY2RGB)
+        return bool(cv2.norm(img, back, cv2.NORM_INF) == 0)
+    return bool(np.array_equal(img[..., 0], img[..., 1]) and np.array_equal(img[..., 0], img[..., 2]))
 
 
 def _threshold_mask(gray: np.ndarray, thr: float) -> np.ndarray:
@@ -172,12 +178,7 @@ def _noise_sigma_of_rows(rows: np.ndarray) -> float:
 
 def noise_sigma_of_differences(d: np.ndarray) -> float:
     """:func:`noise_sigma` from any selection of its differences ``d`` (1-D)."""
-    return _sigma_of_mad(np.median(np.abs(d - np.median(d))))
-
-
-def _sigma_of_mad(mad) -> float:
-    """White noise's standard deviation from the MAD of :func:`noise_sigma`'s differences."""
-    return float(1.4826 * mad / np.sqrt(1.5))
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(1.5))  # white noise's sd from its MAD
 
 
 def noise_level_table(gray: np.ndarray, full_scale: float, fallback: float) -> np.ndarray:

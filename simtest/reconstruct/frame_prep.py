@@ -15,6 +15,7 @@ from simtest.geometry.cameras import CameraModel, PinholeCamera
 from simtest.reconstruct._pixels import Roi, image_size_wh
 from simtest.reconstruct.detect import (colour_luma32, luma_cv2, default_full_scale, frame_ceiling, image_noise_sigma,
                                         luma, smooth_sigma_for_noise, validate_image)
+from simtest.reconstruct.detect_pixels import _is_gray
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.settings import ReconSettings
 
@@ -204,18 +205,6 @@ def _gaussian_kernel(sigma: float) -> np.ndarray:
 def _smooth(vals: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian smoothing of an ROI's intensities (step 1), its borders reflected."""
     return cv2.GaussianBlur(vals, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-
-
-def _is_gray(img: np.ndarray) -> bool:
-    """Whether R = G = B at every pixel of an (H, W, C >= 3) image (a NaN is no match)."""
-    rows = img[:: max(1, img.shape[0] // 16)]  # about 16 rows: speed only, the answer is the same
-    if not (np.array_equal(rows[..., 0], rows[..., 1]) and np.array_equal(rows[..., 0], rows[..., 2])):
-        return False
-    if img.shape[2] == 3 and img.size and img.dtype.type in (np.uint8, np.uint16):
-        img = np.ascontiguousarray(img)
-        back = cv2.cvtColor(cv2.extractChannel(img, 0), cv2.COLOR_GRAY2RGB)
-        return bool(cv2.norm(img, back, cv2.NORM_INF) == 0)
-    return bool(np.array_equal(img[..., 0], img[..., 1]) and np.array_equal(img[..., 0], img[..., 2]))
 
 
 def _frame_luma_smoothing(img: np.ndarray, detection_smoothed: np.ndarray, sigma: float,

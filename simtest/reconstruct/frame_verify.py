@@ -68,12 +68,12 @@ def _verifier_inputs(frame: _Frame, native: np.ndarray | None = None,
     return gray, grey, noise_sigma(gray) if noise is None else float(noise)
 
 
-def _verified(frame: _Frame, ests: list[SpecularityEstimate], native: np.ndarray | None = None,
-              noise: float | None = None, *, verifier: tuple | None = None, lights=None) -> list[SpecularityEstimate]:
+def _verified(frame: _Frame, ests: list[SpecularityEstimate], *, verifier: tuple | None = None,
+              lights=None) -> list[SpecularityEstimate]:
     """The estimates with their confidence, and the fitted ones that fail a check of
     :mod:`simtest.reconstruct.verify` with its reason as status (the fit kept).
     """
-    gray, grey, noise = _verifier_inputs(frame, native, noise) if verifier is None else verifier
+    gray, grey, noise = _verifier_inputs(frame) if verifier is None else verifier
     # only the estimates with isophotes can have a confidence or a verdict; the others stay as they are
     fit = [e for e in ests if e.isophotes]
     if not fit:

@@ -50,7 +50,6 @@ def _dct_matrix(n: int = BLOCK) -> np.ndarray:
     return d
 
 
-_D = _dct_matrix().astype(np.float32)
 #: The 2-D DCT of a row-major flattened 8 x 8 block, transposed: ``kron(D, D).T`` (float32).
 _DD_T = np.ascontiguousarray(np.kron(_dct_matrix(), _dct_matrix()).T.astype(np.float32))
 
