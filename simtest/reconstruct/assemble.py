@@ -217,18 +217,17 @@ def _complete(drafts: list) -> list[SpecularityEstimate]:
     enclosed = _enclosed_counts(dr)
     return [_finish(d, joint_of.get(id(d)), enclosed.get(id(d))) if type(d) is _Draft else d for d in drafts]
 def _enclosed_counts(drafts: list) -> dict:
-    """``id(draft) -> n``: how many other BPs each draft's closed ok primary isophote encloses, in one
-    batch; the drafts not counted here are counted by :func:`_finish`.
+    """``id(draft) -> n``: how many other BPs each draft's closed ok primary isophote encloses, one batch
+    per frame's BPs (``other_bps``: a frame's :class:`_SortedBps`, or () for none).
     """
     todo = [d for d in drafts if isinstance(d.other_bps, _SortedBps) and d.results[0].status == OK
             and d.results[0].closed and len(d.other_bps) > (d.own_bp >= 0)]
-    if not todo:
-        return {}
-    others = todo[0].other_bps
-    if any(d.other_bps is not others for d in todo):
-        return {}
-    n_in = count_enclosed([d.results[0].points_uv for d in todo], others.uv, [d.own_bp for d in todo], others.u)
-    return dict(zip(map(id, todo), n_in.tolist()))
+    out = {}
+    for others in {id(d.other_bps): d.other_bps for d in todo}.values():
+        group = [d for d in todo if d.other_bps is others]
+        n_in = count_enclosed([d.results[0].points_uv for d in group], others.uv, [d.own_bp for d in group], others.u)
+        out.update(zip(map(id, group), n_in.tolist()))
+    return out
 
 
 def count_enclosed(polys: list, points, skips, us: np.ndarray | None = None) -> np.ndarray:
@@ -320,19 +319,14 @@ def _merge_guard(det, bps_arr: np.ndarray) -> tuple[_SortedBps, np.ndarray, np.n
     return others, keep, row_in_others
 
 
-def _finish(d: _Draft, joint, enclosed: int | None = None) -> SpecularityEstimate:
+def _finish(d: _Draft, joint, enclosed: int | None) -> SpecularityEstimate:
     """The estimate of a completed draft: the primary isophote's status, ``merged`` when it encloses
-    another candidate's BP (``enclosed``: the count, where already made).
+    another candidate's BP (``enclosed``: the count of :func:`_enclosed_counts`, None where not counted).
     """
     primary = d.results[0]
     status, detail = primary.status, primary.detail
-    if status == OK and primary.closed and len(d.other_bps) > (d.own_bp >= 0):
-        # the other BPs in the isophote's bounding box, tested even-odd (polygon_contains); other_bps
-        # is a frame's _SortedBps wherever it holds any
-        n_in = enclosed if enclosed is not None else int(
-            count_enclosed([primary.points_uv], d.other_bps.uv, [d.own_bp], d.other_bps.u)[0])
-        if n_in:
-            status, detail = "merged", f"the isophote at t = {primary.isovalue} encloses {n_in} other BP(s)"
+    if enclosed:
+        status, detail = "merged", f"the isophote at t = {primary.isovalue} encloses {enclosed} other BP(s)"
     return SpecularityEstimate(d.bp_uv, d.i_bp, d.saturated, d.roi, status, detail, d.bp_ray, tuple(d.results), joint)
 
 def _replaced(est: SpecularityEstimate, **changes) -> SpecularityEstimate:

@@ -161,15 +161,10 @@ def as_camera(K, dist_coeffs=None) -> CameraModel:
     return PinholeCamera(K, validate_dist_coeffs(dist_coeffs))  # which validates K, as "K"
 
 
-# rays, luma and smoothing
-
-
-# A hot-path form of simtest.geometry's bp_ray_normal for a K validated once per call.
-
-
 def _bp_ray(bp_uv: np.ndarray, camera) -> np.ndarray:
     """BP-ray normal: minus the unit viewing ray through the pixel ``bp_uv`` (3,) (NaN without a ray);
-    ``camera`` a CameraModel or a pinhole K, done in Python floats with :func:`_bp_rays`' bits.
+    ``camera`` a CameraModel or a pinhole K, done in Python floats with :func:`_bp_rays`' bits (a hot-path
+    form of simtest.geometry's bp_ray_normal for a K validated once per call).
     """
     if isinstance(camera, np.ndarray) or (type(camera) is PinholeCamera and camera.dist_coeffs is None):
         K = camera if isinstance(camera, np.ndarray) else camera.K
