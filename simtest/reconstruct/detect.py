@@ -32,6 +32,7 @@ from simtest.reconstruct.detect_pixels import (  # noqa: F401
     frame_ceiling, image_noise_sigma, image_smooth_sigma_px, linear_at, local_peak_mask, luma, mask_labels,
     near_ceiling_mask, noise_sigma, smooth_sigma_for_noise
 )
+from simtest.reconstruct.settings import DETECTION_METHODS
 
 _SUPPORTED = (np.uint8, np.uint16, np.float16, np.float32, np.float64)
 
@@ -264,10 +265,6 @@ def ellipticity(mask: np.ndarray) -> float:
     return float(n / (4 * np.pi * np.sqrt(det))) if det > 0 else float("nan")
 
 
-#: Detection methods: ``"local_peak"`` (the default) and ``"full_scale"``.
-DETECT_METHODS = ("local_peak", "full_scale")
-
-
 def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: float | None = None,
                          saturation_level: float | None = None, min_area_px: int = 4, ellipticity_min: float = 0.75,
                          min_plateau_px: int = 2, roi_scale: float = 3.0, roi_margin_px: int = 4,
@@ -331,8 +328,8 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
     if saturation_level is None and img.dtype.kind == "u":
         saturation_level = frame_ceiling(img)
 
-    if method not in DETECT_METHODS:
-        raise ValueError(f"method: {method!r} is not one of {DETECT_METHODS}")
+    if method not in DETECTION_METHODS:
+        raise ValueError(f"method: {method!r} is not one of {DETECTION_METHODS}")
     gray, grey = _gray_and_grey(img)
     native = gray
     if smooth_sigma_px is None:

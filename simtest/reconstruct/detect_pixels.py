@@ -225,7 +225,7 @@ def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:
     float
         Sigma in px, >= 0.
     """
-    return _sigma_for_noise(noise_sigma(gray) / full_scale)
+    return smooth_sigma_for_noise(noise_sigma(gray), full_scale)
 
 
 def image_smooth_sigma_px(image: np.ndarray, full_scale: float) -> float:
@@ -244,7 +244,7 @@ def image_smooth_sigma_px(image: np.ndarray, full_scale: float) -> float:
     float
         Sigma in px, >= 0.
     """
-    return _sigma_for_noise(image_noise_sigma(image) / full_scale)
+    return smooth_sigma_for_noise(image_noise_sigma(image), full_scale)
 
 
 def image_noise_sigma(image: np.ndarray) -> float:
@@ -266,10 +266,7 @@ def image_noise_sigma(image: np.ndarray) -> float:
 
 def smooth_sigma_for_noise(noise: float, full_scale: float) -> float:
     """:func:`auto_smooth_sigma_px`'s choice for a measured ``noise`` (image units), px."""
-    return _sigma_for_noise(noise / full_scale)
-
-
-def _sigma_for_noise(s: float) -> float:
+    s = noise / full_scale
     return 0.0 if s < 0.005 else float(min(2.5, 1.0 + s / 0.01))
 
 
