@@ -135,14 +135,14 @@ class _Levels:
         return self.offset + t * self.scale
 
 
-def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None, defer=None):
+def _one_isophote(frame: _Frame, region, levels: _Levels, t, flood=None, defer=None, comp=None):
     """Extract the isophote at ``t`` in an ROI's checked region: ``(IsophoteEstimate of a failure, or
     _Pending, Isophote or None)``; with ``defer``, ``(its index there, None)`` until :func:`_resolve`.
-    ``flood``: the flood fill made at that level, or None.
+    ``flood``: the flood fill made at that level, or None; ``comp``: its :func:`_component_box`, or None.
     """
     level = levels.level(t)
     if defer is not None and region.near_bp > level:
-        comp = _component_box(region.sub, level, region.ri, region.ci, flood)
+        comp = comp or _component_box(region.sub, level, region.ri, region.ci, flood)
         if comp is not None:
             defer.append((comp, level, region, levels, t, frame))
             return len(defer) - 1, None
@@ -258,11 +258,7 @@ def _grown_drafts(frame: _Frame, ks: list, bps: list, rois_of: dict, rings_of: d
             region, levels, comps = first[k]
             results = [None] * len(isovalues)
             for i in sorted(range(len(isovalues)), key=lambda i: isovalues[i]):
-                if comps[i] is None:
-                    results[i] = _one_isophote(frame, region, levels, isovalues[i], None, defer)[0]
-                else:
-                    defer.append((comps[i], levels.level(isovalues[i]), region, levels, isovalues[i], frame))
-                    results[i] = len(defer) - 1
+                results[i] = _one_isophote(frame, region, levels, isovalues[i], None, defer, comps[i])[0]
             out[k] = batches.add(_Draft(region.bp_uv, region.near_bp, sat, region.roi, rays[k], frames_of[k], results,
                                         others, own))
             continue
