@@ -217,10 +217,9 @@ def _estimate_one(frame: _Frame, bp_uv, roi: Roi, *, saturated: bool, grow: bool
             if cut:
                 roi, growths = new, growths + 1
                 continue
-        if not cut:
-            results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood, defer)[0] if res is None else res
-            for i in order[1:]:
-                results[i], _ = _one_isophote(frame, region, levels, isovalues[i], None, defer)
+        results[i0] = _one_isophote(frame, region, levels, isovalues[i0], flood, defer)[0] if res is None else res
+        for i in order[1:]:
+            results[i], _ = _one_isophote(frame, region, levels, isovalues[i], None, defer)
         break
     return _Draft(bp_uv, i_bp, saturated, roi, bp_ray, fitf, results, other_bps, own_bp)
 
