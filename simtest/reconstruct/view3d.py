@@ -67,17 +67,15 @@ def estimate_points(specs, estimator: str) -> tuple[np.ndarray, np.ndarray, bool
     return rays_a * scale, np.array(normals).reshape(-1, 3), metric
 
 
-def surface_from_depth(depth_mm, camera, *, z_depth: bool = True) -> np.ndarray:
-    """Camera-frame points (H, W, 3) mm of a depth map through a camera model.
+def surface_from_depth(depth_mm, camera) -> np.ndarray:
+    """Camera-frame points (H, W, 3) mm of a z-depth map through a camera model.
 
     Parameters
     ----------
     depth_mm : ndarray of shape (H, W)
-        Depth, mm; NaN where invalid.
+        Depth along the optical axis (the z coordinate, as renders and C3VD give it), mm; NaN where invalid.
     camera : CameraModel
         The camera.
-    z_depth : bool
-        True: the depth is the z coordinate (renders, C3VD); False: the distance along the ray.
 
     Returns
     -------
@@ -89,7 +87,7 @@ def surface_from_depth(depth_mm, camera, *, z_depth: bool = True) -> np.ndarray:
     vv, uu = np.mgrid[0:H, 0:W]
     rays = camera.pixel_to_ray(np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)).reshape(H, W, 3)
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = d / rays[..., 2] if z_depth else d
+        s = d / rays[..., 2]
         s = np.where(np.isfinite(s) & (s > 0), s, np.nan)
     return rays * s[..., None]
 
