@@ -48,7 +48,7 @@ from simtest.dataset.shards import WRITE_ERRNOS, DatasetError, DatasetWriteError
 
 __all__ = ["FORMATS", "READ_HDF5", "READ_WEBDATASET", "export"]
 
-#: Export formats: name -> default folder suffix.
+#: The export formats' names (``--format``).
 FORMATS = ("webdataset", "hdf5")
 
 _FIELDS = ("normals", "depth", "linear", "specular", "mask", "highlight_mask")

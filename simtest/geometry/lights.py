@@ -25,7 +25,7 @@ __all__ = ["FALLOFFS", "MAX_AHEAD_MM", "MAX_DISTANCE_MM", "MAX_INTENSITY", "MAX_
 FALLOFFS = ("inverse_square", "none")
 #: The most lights a rig may have (endoscope tips carry one to a few light guides).
 MAX_LIGHTS = 8
-#: Bounds of a light's intensity (a relative weight; module docstring, "Physical sense").
+#: Bounds of a light's intensity (a relative weight; the module docstring says why).
 MIN_INTENSITY = 1e-9
 MAX_INTENSITY = 1e9
 #: The largest emission-profile exponent m: a 2.1 deg half-power beam (a light guide's fibres, NA 0.2 to 0.9,
@@ -168,7 +168,7 @@ class LightRig:
 
 
 def check_scope_rig(rig: LightRig) -> LightRig:
-    """Check that a rig can be a scope's lights (module docstring, "Physical sense").
+    """Check that a rig can be a scope's lights (the module docstring's bounds).
 
     Parameters
     ----------

@@ -202,8 +202,8 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstim
 
 
 def _unique_sign_axes(s: np.ndarray):
-    """Sign-normalised decomposition of unit symmetric cones s (k, 3, 3): the sign (k,), l1, l2, l3
-    (k,), eigenvectors e1 and e3 (k, 3), and which cones are real and elliptic (k,) bool.
+    """Sign-normalised decomposition of unit symmetric cones s (k, 3, 3): the cones signed to eigenvalues (+, +, -)
+    (k, 3, 3), l1, l2, l3 (k,), eigenvectors e1 and e3 (k, 3), and which cones are real and elliptic (k,) bool.
     """
     eps = TOL.conic_degenerate_rel
     lam = _symmetric_roots(s)  # descending

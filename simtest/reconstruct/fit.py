@@ -275,7 +275,7 @@ def _positive_definite(s: np.ndarray, tau: np.ndarray, which: np.ndarray) -> np.
 
 def _ellipse_params(c: np.ndarray):
     """Centres (k, 2), semi-axes (a >= b) (k, 2), angles (k,) rad and which are real ellipses (k,) bool
-    of symmetric finite conics (k, 3, 3), as ``conics._ellipses_of`` measures them, in closed form.
+    of symmetric finite conics (k, 3, 3), as :func:`simtest.geometry.conics.conic_to_ellipse` measures one, in closed form.
     """
     eps = TOL.conic_degenerate_rel
     norm = np.sqrt((c * c).sum(axis=2).sum(axis=1))
