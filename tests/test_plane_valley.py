@@ -62,3 +62,25 @@ def test_a_plane_turned_away_from_the_ray_has_no_valley_coordinates():
     n0 = unit(np.array([0.1, 0.0, 1.0]))  # faces along the ray: the camera sees its back
     c = ValleyCoords(r, np.array([4.0, 0.0, 0.0]), n0, *plane_basis(n0))
     assert c.to_q(np.array([0.0, 0.0, np.log(10.0), 0.0])) is None
+
+
+def test_a_fit_run_off_to_an_infinite_distance_is_not_converged_without_a_warning(monkeypatch):
+    # LM's iterate can end with log h past exp's range (h = inf): the estimate says not_converged and
+    # no RuntimeWarning reaches the user's terminal (the run of lightaware-curved at seed 0 printed one)
+    import warnings
+
+    from benchmarks.inputs import synthetic_offset_highlight
+    from simtest.reconstruct.lightaware import plane, photometric_fit
+
+    roi, K, bp, rig, _, _ = synthetic_offset_highlight()
+    solve = plane.solve_plane
+
+    def run_off(m, cands, s, floor_level):
+        x, n0, h0, e1, e2, conv, msg, nfev = solve(m, cands, s, floor_level)
+        return np.array([x[0], x[1], 1000.0, x[3]]), n0, h0, e1, e2, conv, msg, nfev
+
+    monkeypatch.setattr(plane, "solve_plane", run_off)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        est = photometric_fit(roi, (0, 0), bp, K, rig)
+    assert est.status == "not_converged" and "inf" in est.detail, (est.status, est.detail)

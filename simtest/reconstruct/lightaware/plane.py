@@ -297,8 +297,8 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
         return replace(solved, projection=how)
     x, n0, h0, e1, e2, conv, msg, nfev = solved
     n_hat = _normal_derivs(x, n0, e1, e2)[0]
-    h_hat = float(np.exp(x[2]))
-    rough_hat = m.phong_n(x[3])  # (a fit run off to an infinite roughness: implausible below)
+    with np.errstate(over="ignore"):  # a fit run off to an infinite h or roughness: implausible below
+        h_hat, rough_hat = float(np.exp(x[2])), m.phong_n(x[3])
     bad = _implausible(h_hat, h0, rough_hat, shaded=s.diffuse)
     if bad:
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev, projection=how)
