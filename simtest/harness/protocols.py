@@ -349,8 +349,8 @@ class RenderedRunner:
         over = realisation_overrides(self.scene_setting, seedseq)
         result = render_scene(with_overrides(self.spec, over), seed=over["render.seed"])
         self.variant = getattr(result, "variant", None)
-        if self.image_kind == "linear":  # the render's grey where it has one
-            image = np.asarray(result.linear if getattr(result, "gray", None) is None else result.gray)
+        if self.image_kind == "linear":  # the render's linear grey image
+            image = np.asarray(result.linear)
         else:
             image = np.asarray(result.sensor)
         ests = reconstruct_image(image, result.K, self.settings)
