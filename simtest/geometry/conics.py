@@ -25,7 +25,7 @@ from simtest.geometry.camera import validate_intrinsics
 from simtest.tolerances import TOL
 
 __all__ = ["CirclePose", "ConeAxis", "Ellipse", "circle_pose", "conic_kind", "conic_to_ellipse", "cone_axis",
-           "normalised_conic", "plane_basis", "project_circle"]
+           "normalised_conic", "plane_basis", "project_circle", "section_centres"]
 
 
 @dataclass(frozen=True)
@@ -226,7 +226,9 @@ def circle_pose(Cn) -> CirclePose:
     Q = np.einsum("ij,j,lj->il", V, w, V)  # sign-normalised, unit cone
     n = np.array([[1.0], [-1.0]]) * sin_phi * V[:, 0] + cos_phi * V[:, 2]
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    c = _section_centres(np.stack([Q, Q]), n)
+    c, has_centre = section_centres(np.stack([Q, Q]), n)
+    if not has_centre.all():
+        raise np.linalg.LinAlgError("Singular matrix")
     # facing the camera: n . c < 0 (not n_z < 0: a steep plane far off-axis faces it with n_z > 0)
     return CirclePose(normals=np.where(np.einsum("ij,ij->i", n, c)[:, None] > 0, -n, n), centres=c)
 
@@ -326,27 +328,34 @@ def _cone_eigen(Cn) -> tuple[np.ndarray, np.ndarray]:
     return w[::-1], V[:, ::-1]
 
 
-def _section_centres(Q: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Unit directions (k, 3) of the centres of the sections of cones Q by planes of normals n.
+def section_centres(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the sections of cones by planes through their apex' front have their centres.
 
-    Raises ``np.linalg.LinAlgError("Singular matrix")`` where a section has no centre.
+    Parameters
+    ----------
+    Q : ndarray of shape (k, 3, 3)
+        Symmetric cones (point conics of the image lifted to rays, camera frame).
+    n : ndarray of shape (k, 3)
+        Unit plane normals: the planes n . X = 1.
+
+    Returns
+    -------
+    centres : ndarray of shape (k, 3)
+        Unit directions of the sections' centres, z >= 0 (NaN where there is none).
+    has_centre : ndarray of shape (k,), bool
+        Where the section has a centre (its 2 x 2 quadratic part is not singular).
     """
-    # plane n.X = 1 as X = n + a u + b w, (u, w) the basis of plane_basis
-    x, y, z = n[:, 0], n[:, 1], n[:, 2]
-    near_x = np.abs(x) >= 0.9
-    zero = np.zeros_like(x)
-    # n x e_x = (0, z, -y); n x e_y = (-z, 0, x)
-    u = np.stack([np.where(near_x, -z, zero), np.where(near_x, zero, z), np.where(near_x, x, -y)], axis=1)
-    u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    w = np.stack([y * u[:, 2] - z * u[:, 1], z * u[:, 0] - x * u[:, 2], x * u[:, 1] - y * u[:, 0]], axis=1)
-    B = np.stack([u, w], axis=2)  # (k, 3, 2)
-    BtQ = np.einsum("kia,kij->kaj", B, Q)
-    M = BtQ @ B
-    g = np.einsum("kaj,kj->ka", BtQ, n)
-    ab = np.linalg.solve(M, g[..., None])[..., 0]
-    X = n - np.einsum("kia,ka->ki", B, ab)
-    X = X / np.linalg.norm(X, axis=1, keepdims=True)
-    return np.where(X[:, 2:] < 0, -X, X)
+    # the plane n.X = 1 as X = n + a u + b w, (u, w) the basis of plane_basis; the centre solves M (a, b) = g
+    u, w = plane_basis(n)
+    qu, qw = (Q @ u[:, :, None])[:, :, 0], (Q @ w[:, :, None])[:, :, 0]
+    m00, m01, m11 = (u * qu).sum(axis=1), (u * qw).sum(axis=1), (w * qw).sum(axis=1)
+    g0, g1 = (n * qu).sum(axis=1), (n * qw).sum(axis=1)
+    det = m00 * m11 - m01 * m01
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (m11 * g0 - m01 * g1) / det, (m00 * g1 - m01 * g0) / det
+        x = n - a[:, None] * u - b[:, None] * w
+        x /= np.sqrt((x * x).sum(axis=1))[:, None]
+    return x * np.where(x[:, 2] < 0, -1.0, 1.0)[:, None], det != 0
 
 
 def project_circle(centre_mm, normal, radius_mm: float, K) -> np.ndarray:

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simtest.geometry.conics import plane_basis, section_centres
 from simtest.reconstruct.failures import Failure
 from simtest.reconstruct.fit import _THIRDS, _eigh2, _null_vectors
 from simtest.tolerances import TOL
@@ -171,7 +172,7 @@ def estimate_from_conics(Cns: np.ndarray, bp_rays: np.ndarray) -> list[ConeEstim
     n = (np.array([1.0, -1.0])[None, :, None] * (sin_phi[:, None] * e1)[:, None, :]
          + (cos_phi[:, None] * e3)[:, None, :]).reshape(2 * k, 3)
     n /= np.sqrt((n * n).sum(axis=1))[:, None]
-    centre, has_centre = _section_centres(np.repeat(q, 2, axis=0), n)
+    centre, has_centre = section_centres(np.repeat(q, 2, axis=0), n)
     paper = (n * np.where((n * centre).sum(axis=1) > 0, -1.0, 1.0)[:, None]).reshape(k, 2, 3)
     ray = -refs
     paper = face_reference(paper, ray[:, None, :])
@@ -216,7 +217,7 @@ def _unique_sign_axes(s: np.ndarray):
     l3 = np.where(flip, -lam[:, 0], lam[:, 2])
     e3, defined = _null_vectors(s - l3[:, None, None] * np.eye(3))
     # the same-sign pair: the cone restricted to the plane orthogonal to e3, basis (u, w)
-    u, w = _plane_basis(e3)
+    u, w = plane_basis(e3)
     su, sw = (s @ u[:, :, None])[:, :, 0], (s @ w[:, :, None])[:, :, 0]
     lo, hi, x, y = _eigh2((u * su).sum(axis=1), (u * sw).sum(axis=1), (w * sw).sum(axis=1))
     e1 = -y[:, None] * u + x[:, None] * w  # the eigenvector of hi: (x, y) turned by 90 degrees
@@ -232,37 +233,6 @@ def _symmetric_roots(s: np.ndarray) -> np.ndarray:
     c = np.clip(np.linalg.det(b) / (2.0 * r * r * r), -1.0, 1.0)
     c = np.where(p > 0, c, 1.0)
     return sh[:, None] + (2.0 * r)[:, None] * np.cos((np.arccos(c) / 3.0)[:, None] - _THIRDS)
-
-
-def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """An orthonormal basis (u, w) (k, 3) each of the planes orthogonal to unit n (k, 3), as ``conics.plane_basis``."""
-    x, y, z = n[:, 0], n[:, 1], n[:, 2]
-    near_x = np.abs(x) >= 0.9
-    u = np.empty_like(n)
-    u[:, 0] = np.where(near_x, -z, 0.0)
-    u[:, 1] = np.where(near_x, 0.0, z)
-    u[:, 2] = np.where(near_x, x, -y)
-    u /= np.sqrt((u * u).sum(axis=1))[:, None]
-    w = np.empty_like(n)
-    w[:, 0] = y * u[:, 2] - z * u[:, 1]
-    w[:, 1] = z * u[:, 0] - x * u[:, 2]
-    w[:, 2] = x * u[:, 1] - y * u[:, 0]
-    return u, w
-
-
-def _section_centres(q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit directions (k, 3) of the centres of the sections of cones q (k, 3, 3) by the planes
-    n . X = 1, and which have one (k,) bool (``conics._section_centres``).
-    """
-    u, w = _plane_basis(n)
-    qu, qw = (q @ u[:, :, None])[:, :, 0], (q @ w[:, :, None])[:, :, 0]
-    m00, m01, m11 = (u * qu).sum(axis=1), (u * qw).sum(axis=1), (w * qw).sum(axis=1)
-    g0, g1 = (n * qu).sum(axis=1), (n * qw).sum(axis=1)
-    det = m00 * m11 - m01 * m01
-    a, b = (m11 * g0 - m01 * g1) / det, (m00 * g1 - m01 * g0) / det
-    x = n - a[:, None] * u - b[:, None] * w
-    x /= np.sqrt((x * x).sum(axis=1))[:, None]
-    return x * np.where(x[:, 2] < 0, -1.0, 1.0)[:, None], det != 0
 
 
 def joint_cone_axis(cns, bp_ray: np.ndarray) -> np.ndarray | Failure:
