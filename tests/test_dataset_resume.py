@@ -117,7 +117,7 @@ _SCRIPT = textwrap.dedent("""
 
     def slow(config, index):  # imports here: a spawned worker imports this module too
         open({out!r} + f".running-{{index}}", "w").close()  # the worker is past its start-up
-        time.sleep(30)
+        time.sleep(90)  # (killed long before: only the test's start-up wait below must fit in it)
         from test_dataset_format import standin_sample
         return standin_sample(config, index)
 
@@ -156,8 +156,10 @@ def test_killing_generate_leaves_no_worker_running(tmp_path, sig):
     try:
         workers: list[int] = []
         servers: list[int] = []
-        deadline = time.monotonic() + 18
-        while time.monotonic() < deadline:  # wait until both workers run a sample
+        # the wait for both workers to run a sample: spawned workers import simtest, which on a 2-core
+        # machine under load (another test run beside it) took over 18 s; the wait ends when they run
+        deadline = time.monotonic() + 75
+        while time.monotonic() < deadline:
             workers, servers = _pool_processes(proc.pid)
             if len(workers) == 2 and len(list(tmp_path.glob("ds.running-*"))) == 2:
                 break
