@@ -261,3 +261,19 @@ def test_cross3_is_np_cross_bit_for_bit(a, b):
 
     want = np.cross(np.array(a), np.array(b))
     assert np.array_equal(cross3(a, b), want) and cross3(a, b).dtype == np.float64
+
+
+@given(seed=st.integers(0, 2**32 - 1), shape=st.sampled_from([(1,), (5,), (2, 4), (0,)]),
+       broadcast=st.booleans(), scale=st.sampled_from([1e-300, 1.0, 1e150]))
+@settings(max_examples=200, deadline=None)
+def test_cross3_of_stacks_is_np_cross_bit_for_bit(seed, shape, broadcast, scale):
+    # stacks (plane_basis' rows, angle_between_deg's): the same bits as np.cross's, each row its own;
+    # the scales reach underflow and overflow, where the order of the operations shows
+    from simtest.geometry.angles import cross3
+
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(*shape, 3)) * scale
+    b = rng.normal(size=(3,) if broadcast else (*shape, 3))
+    got, want = cross3(a, b), np.cross(a, b)
+    assert got.shape == want.shape and got.dtype == np.float64
+    assert np.array_equal(got, want, equal_nan=True)

@@ -252,9 +252,9 @@ def plane_basis(normal, axes: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, np.
     """
     n = np.asarray(normal, dtype=np.float64)
     first, second = axes
-    if n.ndim == 2:  # (np.cross: cross3's products; np.vecdot: np.linalg.norm's dot)
-        u = np.cross(n, np.where(np.abs(n[:, first:first + 1]) < 0.9, _AXES[first], _AXES[second]))
-        return (u := u / np.sqrt(np.vecdot(u, u))[:, None]), np.cross(n, u)
+    if n.ndim == 2:  # (np.vecdot: np.linalg.norm's dot)
+        u = cross3(n, np.where(np.abs(n[:, first:first + 1]) < 0.9, _AXES[first], _AXES[second]))
+        return (u := u / np.sqrt(np.vecdot(u, u))[:, None]), cross3(n, u)
     u = cross3(n, _AXES[first if abs(n[first]) < 0.9 else second])
     return (u := u / np.linalg.norm(u)), cross3(n, u)
 
