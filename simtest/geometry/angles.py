@@ -8,9 +8,8 @@ import numpy as np
 def cross3(a, b) -> np.ndarray:
     """Cross product of 3-vectors, bit for bit ``np.cross(a, b)``, several times cheaper.
 
-    The same products and differences (``a1 b2 - a2 b1``, ...), one multiply and one subtract each
-    as ``np.cross`` takes them, without its axis handling, which costs more than the arithmetic on a
-    few vectors: scalar arithmetic for one pair, numpy's on the last axis for stacks.
+    The same products and differences (``a1 b2 - a2 b1``, ...), without ``np.cross``'s axis handling,
+    which costs more than the arithmetic on a few vectors.
 
     Parameters
     ----------

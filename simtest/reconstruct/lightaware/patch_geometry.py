@@ -11,6 +11,8 @@ mean light. All in the camera frame (OpenCV axes), mm.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from simtest.geometry.angles import unit
@@ -24,17 +26,10 @@ PATCH_PARAMS = 11
 #: Newton steps that take a pixel ray's intersection from the quadric's root to the cubic patch's.
 _CUBIC_NEWTON_STEPS = 4
 
-#: The last BP ray's :func:`_ray_basis`: a fit images its patch along one ray thousands of times.
-_RAY_BASIS: dict = {}
-
-
-def _ray_basis(b_ray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``plane_basis(b_ray)``, the last ray's remembered (the same arrays: read, never written)."""
-    key = np.asarray(b_ray, dtype=np.float64).tobytes()
-    if (basis := _RAY_BASIS.get(key)) is None:
-        _RAY_BASIS.clear()
-        basis = _RAY_BASIS[key] = plane_basis(b_ray)
-    return basis
+@functools.lru_cache(maxsize=1)
+def _ray_basis(b_ray: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """``plane_basis`` of the BP ray (its float64 bytes), the last one's kept: a fit images along it thousands of times."""
+    return plane_basis(np.frombuffer(b_ray))
 
 
 def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
@@ -93,7 +88,7 @@ def _quadric_image(d, b_ray, p, rig_arr, Lm):
     """Specular image (N,) of the quadric patch ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``
     along rays d and its apex normal (3,) (:func:`quadric_fit`); for K patches ``p`` (K, 7), images
     (K, N), each bit for bit its own, and normals (K, 3). Rays that miss give 0."""
-    s, P0, N, t1, t2 = _quadric_frame(*_ray_basis(b_ray), b_ray, p, Lm)  # each patch's its own (the same bits)
+    s, P0, N, t1, t2 = _quadric_frame(*_ray_basis(np.asarray(b_ray, np.float64).tobytes()), b_ray, p, Lm)
     s = s if np.ndim(p) == 1 else s[:, None]
     kxx, kxy, kyy = p[..., 3:4] / s, p[..., 4:5] / s, p[..., 5:6] / s
     # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray X = t d
@@ -113,7 +108,7 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
     patch in front of the camera, the apex normal, the apex depth s and the apex frame ``(P0, t1, t2, N)``. For K
     patches ``p`` (K, 11): X, ns (K, N, 3), ok (K, N), N (K, 3), s (K, 1), each bit for bit its own."""
     one = np.ndim(p) == 1
-    s, P0, N, t1, t2 = _quadric_frame(*_ray_basis(b_ray), b_ray, p, Lm)
+    s, P0, N, t1, t2 = _quadric_frame(*_ray_basis(np.asarray(b_ray, np.float64).tobytes()), b_ray, p, Lm)
     s = s if one else s[:, None]
     kxx, kxy, kyy = (p[3] / s, p[4] / s, p[5] / s) if one else (p[:, 3:4] / s, p[:, 4:5] / s, p[:, 5:6] / s)
     kzz = 0.5 * (kxx + kyy)
