@@ -42,9 +42,15 @@ class _PatchProblem:
     def residual(self, image) -> np.ndarray:
         """The residual (m,) of a patch image (or (K, m) of K images), the linear part fitted by its normal
         equations (least squares where singular)."""
-        if np.ndim(image) == 2:
-            return np.array([self.residual(im) for im in image])
         A, y = self.A, self.y
+        if np.ndim(image) == 2:  # stacked: numpy's matmul and solve take each image's the same BLAS and LAPACK calls
+            AA = np.repeat(A[None], len(image), axis=0)
+            AA[:, :, 0] = image
+            AT = AA.transpose(0, 2, 1)
+            try:
+                return (AA @ np.linalg.solve(AT @ AA, (AT @ y)[..., None]))[..., 0] - y
+            except np.linalg.LinAlgError:  # (one singular: each its own, as below)
+                return np.array([self.residual(im) for im in image])
         A[:, 0] = image
         try:
             c = np.linalg.solve(A.T @ A, A.T @ y)
