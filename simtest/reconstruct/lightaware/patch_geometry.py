@@ -38,9 +38,9 @@ def _quadric_root(kxx, kxy, kyy, d, P0, t1, t2, N):
     without a root) and where a real, positive, finite root exists. ``k_zz = (k_xx + k_yy) / 2``;
     for K patches: curvatures (K, 1), frame vectors (K, 3), arrays (K, k)."""
     kzz = 0.5 * (kxx + kyy)
-    one = P0.ndim == 1  # else each patch's products as its own (the same bits)
-    ax, ay, az = (d @ v if one else np.array([d @ u for u in v]) for v in (t1, t2, N))
-    bx, by, bz = (-(P0 @ v) if one else -np.array([[a @ u] for a, u in zip(P0, v)]) for v in (t1, t2, N))
+    one = P0.ndim == 1  # else stacked: numpy's matmul takes each patch's BLAS gemv as its own (the same bits)
+    ax, ay, az = (d @ v if one else np.matmul(d[None], v[:, :, None])[..., 0] for v in (t1, t2, N))
+    bx, by, bz = (-(P0 @ v) if one else -np.matmul(P0[:, None, :], v[:, :, None])[..., 0] for v in (t1, t2, N))
     A = 0.5 * (kxx * ax * ax + 2 * kxy * ax * ay + kyy * ay * ay + kzz * az * az)
     B = az + (kxx * ax * bx + kxy * (ax * by + ay * bx) + kyy * ay * by + kzz * az * bz)
     C = bz + 0.5 * (kxx * bx * bx + 2 * kxy * bx * by + kyy * by * by + kzz * bz * bz)
