@@ -32,14 +32,14 @@ def test_a_batch_of_patches_gives_each_patchs_frame_bit_for_bit(seed, k, near_x)
     e1, e2 = plane_basis(b_ray)
     tilt = 0.02 if near_x else 0.3  # (near_x: apexes about the ray, their normals about the x axis)
     P = np.column_stack([rng.normal(scale=tilt, size=(k, 2)), rng.uniform(0.5, 5.0, k), rng.normal(size=(k, 4))])
-    batch = _quadric_frame(e1, e2, b_ray, P, Lm)
+    batch = _quadric_frame(b_ray, P, Lm)
     assert batch[0].shape == (k,) and all(v.shape == (k, 3) for v in batch[1:])
     assert not near_x or (np.abs(batch[2][:, 0]) >= 0.9).all()
     for i in range(k):
         one = _one_by_one(e1, e2, b_ray, P[i], Lm)
         for got, want in zip((v[i] for v in batch), one):
             assert np.array_equal(got, want), (i, got, want)
-        single = _quadric_frame(e1, e2, b_ray, P[i], Lm)  # one patch's parameters alone
+        single = _quadric_frame(b_ray, P[i], Lm)  # one patch's parameters alone
         for got, want in zip(single, one):
             assert np.array_equal(got, want)
 

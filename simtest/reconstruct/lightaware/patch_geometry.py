@@ -73,9 +73,10 @@ def _patch_lobes(d, X, ns, ok, s, rough, rig_arr):
     return np.where(ok & (nv > 0), out, 0.0)
 
 
-def _quadric_frame(e1, e2, b_ray, p, Lm):
-    """The apex depth s, apex P0 and frame (N, t1, t2) of the quadric patch ``p`` (e1, e2: b_ray's basis), or of K
+def _quadric_frame(b_ray, p, Lm):
+    """The apex depth s, apex P0 and frame (N, t1, t2) of the quadric patch ``p`` about the BP ray ``b_ray``, or of K
     patches ``p`` (K, k) as arrays (K,) and (K, 3), each bit for bit its own (norms by ``np.vecdot``: norm's dot)."""
+    e1, e2 = _ray_basis(np.asarray(b_ray, np.float64).tobytes())
     def unit_rows(v):
         return v / np.sqrt(np.vecdot(v, v))[:, None]
     P0 = np.exp((q := np.atleast_2d(p))[:, 2:3]) * unit_rows(b_ray + q[:, 0:1] * e1 + q[:, 1:2] * e2)
@@ -88,7 +89,7 @@ def _quadric_image(d, b_ray, p, rig_arr, Lm):
     """Specular image (N,) of the quadric patch ``p = (a, b, log s, kappa_xx, kappa_xy, kappa_yy, log n)``
     along rays d and its apex normal (3,) (:func:`quadric_fit`); for K patches ``p`` (K, 7), images
     (K, N), each bit for bit its own, and normals (K, 3). Rays that miss give 0."""
-    s, P0, N, t1, t2 = _quadric_frame(*_ray_basis(np.asarray(b_ray, np.float64).tobytes()), b_ray, p, Lm)
+    s, P0, N, t1, t2 = _quadric_frame(b_ray, p, Lm)
     s = s if np.ndim(p) == 1 else s[:, None]
     kxx, kxy, kyy = p[..., 3:4] / s, p[..., 4:5] / s, p[..., 5:6] / s
     # F = z + (k_xx x^2 + 2 k_xy x y + k_yy y^2) / 2 = 0 along the ray X = t d
@@ -108,7 +109,7 @@ def _cubic_patch_geometry(d, b_ray, p, Lm):
     patch in front of the camera, the apex normal, the apex depth s and the apex frame ``(P0, t1, t2, N)``. For K
     patches ``p`` (K, 11): X, ns (K, N, 3), ok (K, N), N (K, 3), s (K, 1), each bit for bit its own."""
     one = np.ndim(p) == 1
-    s, P0, N, t1, t2 = _quadric_frame(*_ray_basis(np.asarray(b_ray, np.float64).tobytes()), b_ray, p, Lm)
+    s, P0, N, t1, t2 = _quadric_frame(b_ray, p, Lm)
     s = s if one else s[:, None]
     kxx, kxy, kyy = (p[3] / s, p[4] / s, p[5] / s) if one else (p[:, 3:4] / s, p[:, 4:5] / s, p[:, 5:6] / s)
     kzz = 0.5 * (kxx + kyy)
