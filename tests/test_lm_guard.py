@@ -84,3 +84,25 @@ def test_a_batched_solve_stops_at_the_iterate_that_ran_off_not_at_a_trial():
     assert r.fun[0] == np.exp(-r.x[0]) and r.cost == 0.5 * r.fun[0] ** 2
     assert all(a[0] <= 5.0 for a in accepted[:-1]) and 0 < r.nfev < free_run.nfev
     assert np.all(np.diff([np.exp(-a[0]) for a in accepted]) <= 0)
+
+
+def test_the_budget_counts_lm_steps_and_a_ran_off_solve_counts_them_too():
+    # quadric_fit's and cubic_patch_fit's budgets are max_nfev (k + 1) LM steps: SciPy >= 1.16's method "lm"
+    # counts a step's residual evaluation, not the finite differences' (n more points, one batch, at each
+    # accepted step). Were SciPy to count those again, each budget would shrink (k + 1)-fold: this fails first
+    points = {"n": 0}
+
+    def fun(p):  # r(p) = exp(-p): no minimum, only the budget ends the solve
+        q = np.atleast_2d(p)
+        points["n"] += len(q)
+        return np.exp(-q[:, :1]) if np.ndim(p) == 2 else np.exp(-p[:1])
+
+    budget = 40
+    free_run = lm_least_squares(fun, [0.0], batched=True, max_nfev=budget)
+    assert free_run.status == 0 and free_run.nfev == budget
+    # the finite differences' points came on top: n = 1 at each accepted step (the guard's column reuses the
+    # step's own residual); counted in nfev, none would have
+    assert 0 < points["n"] - budget <= budget
+    # a solve stopped where it ran off reports its steps in the same unit: at most the free run's at that iterate
+    stopped = lm_least_squares(fun, [0.0], batched=True, max_nfev=budget, stop=lambda p: "lost" if p[0] > 5.0 else "")
+    assert stopped.status == -1 and 0 < stopped.nfev < budget

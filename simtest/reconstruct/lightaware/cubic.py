@@ -65,7 +65,7 @@ def patch_depth_profile(values, origin_uv, bp_uv, camera, rig: LightRig, depths_
     start_roughness : float, optional
         Phong n of the flat start (default 50).
     max_nfev : int
-        Evaluation budget per fit, in Jacobian evaluations.
+        Budget per fit: ``max_nfev (k + 1)`` LM steps for k free parameters (finite differences not counted).
 
     Returns
     -------

@@ -66,7 +66,7 @@ class LightAwareEstimate:
     taus : ndarray of shape (K,) or None
         Fitted cosine level tau per isovalue (isocurve_fit).
     n_evaluations : int
-        Model evaluations of the fit (0 for the closed form).
+        Levenberg-Marquardt steps of the fit's solves (finite differences not counted; 0 for the closed form).
     residual_rms : float or None
         RMS residual at the solution (px for the isocurve fit; fraction of the ROI's maximum otherwise).
     light_normals : ndarray of shape (J, 3) or None

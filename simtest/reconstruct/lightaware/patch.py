@@ -111,7 +111,7 @@ def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_rough
 #: Depths of the coarse profile, as multiples of ``nominal_depth_mm``: 0.25 to 8, a factor 2 apart.
 _PROFILE_FACTORS = 2.0 ** np.arange(-2, 4)
 
-#: Evaluation budget (in Jacobian evaluations) and tolerance of each fit of the coarse profile (a start).
+#: Budget (times free parameters + 1 LM steps, as quadric_fit's) and tolerance of each fit of the coarse profile.
 _PROFILE_NFEV = 30
 _PROFILE_TOL = 1e-5
 
@@ -189,7 +189,7 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     max_pixels : int or None
         Beyond this many unclipped pixels, fit those of a regular sub-grid (None keeps all).
     max_nfev : int
-        Evaluation budget per start, in Jacobian evaluations.
+        Budget per start: ``8 max_nfev`` Levenberg-Marquardt steps (their finite differences' points not counted).
     misfit_sigma : bool or float
         State a sigma for a ``patch_misfit`` fit (reading its depth valley). False: none
         (:data:`MISFIT_SIGMA_NOTE`); a number, degrees: only where the local sigma is below it.
@@ -404,8 +404,8 @@ def _valley_sigma_deg(G, covs, Gv, excess) -> float | None:
 
 
 def _fit_fixed_depth(S, log_s, free, starts, max_nfev, tol=1e-8):
-    """Least squares over ``free`` (indices) with log s fixed; the best of the starts.
-    Returns ``(sum of squares, p, nfev)``."""
+    """Least squares over ``free`` (indices) with log s fixed, ``max_nfev (len(free) + 1)`` LM steps a start; the
+    best of the starts. Returns ``(sum of squares, p, nfev)``."""
     free = np.asarray(free)
     best, nfev = None, 0
     for p0 in starts:

@@ -74,20 +74,19 @@ def lm_least_squares(fun, x0, *, x_scale=None, batched: bool = False, stop=None,
     ``_GUARD z`` (0: LM keeps z at 0), read by no other residual. SciPy's C MINPACK (1.16.3, 1.17.1) recomputes a
     column's norm one element too far (qrfac), past the last column into heap garbage, so a solve could end in two
     places; the guard is pivoted last and reads a zero there, every other number unchanged. ``batched``: ``fun``
-    takes (K, n) points (the finite differences' as one batch). ``x``, ``fun``, ``jac`` without the guard.
-    ``stop(x)`` (``batched`` only) returns a reason to end the solve at an iterate LM accepted (where its Jacobian
-    is taken): status -1, that message, ``nfev`` the points evaluated."""
+    takes (K, n) points (the finite differences' as one batch). ``x``, ``fun``, ``jac`` without the guard; ``nfev``
+    and ``max_nfev`` count LM's steps (SciPy >= 1.16's "lm" counts no finite difference). ``stop(x)`` (``batched``
+    only) returns a reason to end the solve at an iterate LM accepted (its Jacobian's): status -1, that message."""
     n, last = len(x0), {"n": 0}  # last: the latest point's residuals (the guard's finite difference is at that point)
     def guarded(q):
         q = np.asarray(q, dtype=np.float64)
-        if q.ndim == 1:
+        if q.ndim == 1:  # (a step: what SciPy's nfev counts)
             last.update(key=q[:n].tobytes(), x=q[:n].copy(), r=fun(q[:n]), n=last["n"] + 1)
             return np.append(last["r"], _GUARD * q[n])
         if stop is not None and (why := stop(last["x"])):
             raise _RanOff(last["x"], why)
         rows = [last["r"] if p.tobytes() == last.get("key") else None for p in q[:, :n]]  # each its point's alone
         todo = [k for k, v in enumerate(rows) if v is None]
-        last["n"] += len(todo)
         for k, v in zip(todo, fun(q[todo, :n]) if todo else ()):
             rows[k] = v
         return np.column_stack([np.array(rows), _GUARD * q[:, n]])
