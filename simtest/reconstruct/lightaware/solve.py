@@ -80,7 +80,7 @@ def lm_least_squares(fun, x0, *, x_scale=None, batched: bool = False, stop=None,
     n, last = len(x0), {"n": 0}  # last: the latest point's residuals (the guard's finite difference is at that point)
     def guarded(q):
         q = np.asarray(q, dtype=np.float64)
-        if q.ndim == 1:  # (a step: what SciPy's nfev counts)
+        if q.ndim == 1:  # (batched: a step, what SciPy's nfev counts)
             last.update(key=q[:n].tobytes(), x=q[:n].copy(), r=fun(q[:n]), n=last["n"] + 1)
             return np.append(last["r"], _GUARD * q[n])
         if stop is not None and (why := stop(last["x"])):
