@@ -47,7 +47,7 @@ NOT_DECISIONS = {
                                                   "_FLUCTUATION_MIN_PIXELS")},
     **{f"lightaware.cubic.{n}": _SOLVER for n in ("_PROFILE_STEP", "_PROFILE_WIDE_START")},
     **{f"lightaware.patch.{n}": _SOLVER for n in ("_PROFILE_NFEV", "_PROFILE_TOL", "_PROFILE_PIXELS")},
-    **{f"lightaware.patch_geometry.{n}": _SOLVER for n in ("_CUBIC_NEWTON_STEPS", "PATCH_PARAMS")},
+    **{f"lightaware.patch_geometry.{n}": _SOLVER for n in ("_CUBIC_NEWTON_STEPS", "QUADRIC_PARAMS")},
     "lightaware.model._CB_FLOOR": _SOLVER, "lightaware.solve._GUARD": _SOLVER, "lightaware.model._FRESNEL_STEP": _SOLVER,
     "lightaware.model.BLINN_PER_PHONG": "a geometric identity: the mirror angle is twice the half vector's",
     "lightaware.patch._VALLEY_STEP": _SOLVER,

@@ -15,7 +15,7 @@ from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.model import _mean_light, _rays, _rig_arrays, _roi_grid, _roi_samples
 from simtest.reconstruct.lightaware.patch_geometry import (
-    _light_normal_jacobian, _patch_specular_points, _quadric_image,
+    QUADRIC_PARAMS, _light_normal_jacobian, _patch_specular_points, _quadric_image,
 )
 from simtest.reconstruct.lightaware.solve import (
     _covariance, _hac_covariance, _implausible, _patch_verdict, lm_least_squares,
@@ -84,8 +84,9 @@ def _quadric_lm(res, p0, x_scale, max_nfev, nominal_mm):
     """Levenberg-Marquardt on the quadric's residual ``res`` from ``p0`` (scipy's result), each start's; stopped as a
     plane fit's where the apex depth (about ``nominal_mm``) or n ran off (:data:`~simtest.decisions.RUN_OFF_FACTOR`)."""
     with np.errstate(all="ignore"):  # (batched: the finite differences' points imaged at once, each bit for bit)
-        return lm_least_squares(res, p0, max_nfev=max_nfev * 8, x_scale=x_scale, ftol=1e-6, xtol=1e-6, batched=True,
-                                stop=lambda p: _implausible(np.exp(p[2]), nominal_mm, np.exp(p[6]), widen=RUN_OFF_FACTOR))
+        return lm_least_squares(res, p0, max_nfev=max_nfev * (QUADRIC_PARAMS + 1), x_scale=x_scale, ftol=1e-6,
+                                xtol=1e-6, batched=True, stop=lambda p: _implausible(
+                                    np.exp(p[2]), nominal_mm, np.exp(p[6]), widen=RUN_OFF_FACTOR))
 
 
 def _quadric_starts(res, x_scale, nominal_depth_mm, start_depths_mm, start_roughness, max_nfev):
@@ -122,10 +123,8 @@ _PROFILE_PIXELS = 200
 
 
 def _flat_start(roughness, k):
-    """A flat patch of ``k`` parameters (7: a quadric, 11: a cubic patch) at the BP's ray, Phong n ``roughness``."""
-    p = np.zeros(k)
-    p[6] = np.log(roughness)
-    return p
+    """A flat patch of ``k`` parameters (a quadric's or a cubic patch's) at the BP's ray, Phong n ``roughness``."""
+    return np.concatenate([np.zeros(6), [np.log(roughness)], np.zeros(k - 7)])
 
 
 def _coarse_profile(S, depths, start_roughness, max_nfev, k):
@@ -224,8 +223,8 @@ def quadric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, *, clip_level: 
     if rig.has_separate_lights and est.status in ("patch_misfit", "not_converged"):
         # the flat starts' basin missed the patch: the depth the coarse profile finds starts a second fit
         coarse = _patch_problem(values, origin_uv, bp_uv, camera, rig, clip_level, _PROFILE_PIXELS, 12)[0] or P
-        cost, sol, n_profile = _coarse_profile(dict(S, res=_quadric_residual(coarse)),
-                                               float(nominal_depth_mm) * _PROFILE_FACTORS, start_roughness, max_nfev, 7)
+        cost, sol, n_profile = _coarse_profile(dict(S, res=_quadric_residual(coarse)), float(nominal_depth_mm)
+                                               * _PROFILE_FACTORS, start_roughness, max_nfev, QUADRIC_PARAMS)
         total = nfev + n_profile
         if np.isfinite(cost).any():
             again = _quadric_lm(res, sol[int(np.argmin(cost))], x_scale, max_nfev, float(nominal_depth_mm))

@@ -19,8 +19,9 @@ from simtest.geometry.angles import unit
 from simtest.geometry.conics import plane_basis
 from simtest.reconstruct.lightaware.solve import lm_least_squares
 
-#: Parameters of the cubic patch (the quadric's seven and four third-order coefficients).
-PATCH_PARAMS = 11
+#: Parameters of the quadric patch (a, b, log s, three curvatures, log n) and of the cubic (four third-order more).
+QUADRIC_PARAMS = 7
+PATCH_PARAMS = QUADRIC_PARAMS + 4
 
 
 #: Newton steps that take a pixel ray's intersection from the quadric's root to the cubic patch's.
