@@ -255,35 +255,36 @@ def _curved(est: LightAwareEstimate) -> bool:
 
 
 def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
-    """One lobe's fit, or with ``lobe="auto"`` Phong's, where it misfits GGX's, where the better of the two
-    leaves a curved pattern Blinn's too (:func:`_choose_lobe`), each from Phong's plane (its normal, roughness
-    and distance, kept where its status withdraws the distance)."""
+    """One lobe's fit, or with ``lobe="auto"`` Phong's, where it misfits GGX's, where the better of the two leaves
+    a curved pattern Blinn's too (:func:`_choose_lobe`), each from Phong's normal, roughness and fitted distance."""
     fit = (values, origin_uv, bp_uv, camera, rig)
     if s.lobe != "auto":
         return _fit_plane(*fit, s)
-    pho = _fit_plane(*fit, replace(s, lobe="phong"))
+    colour = (_colour_values(values, s.clip_level, s.projection, bool(s.two_channels), s.clip_margin)
+              if np.ndim(values) == 3 else None)  # each lobe's fit reads the same projection
+    pho = _fit_plane(*fit, replace(s, lobe="phong"), colour)
     # no other lobe needed: passing (or too few pixels to tell) with no curved pattern
     if (pho.ok or pho.status in ("depth_not_observable", "too_few_points")) and pho.curvature_shift_deg is None:
         return pho.noted("phong lobe fits")
     start = (dict(start_normal=pho.normal, start_roughness=pho.roughness, start_distance_mm=pho.fitted_distance_mm)
              if pho.has_normal else dict(start_normal=s.start_normal, start_roughness=s.start_roughness))
-    ggx = _fit_plane(*fit, replace(s, lobe="ggx", **start))
+    ggx = _fit_plane(*fit, replace(s, lobe="ggx", **start), colour)
     best = _choose_lobe(pho, ggx)
     if not _curved(best):
         return best  # (a fit that runs off tells nothing of the lobe's shape)
-    return _choose_lobe(pho, ggx, _fit_plane(*fit, replace(s, lobe="blinn", **start)))
+    return _choose_lobe(pho, ggx, _fit_plane(*fit, replace(s, lobe="blinn", **start), colour))
 
 
-def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
-    """One fit of one lobe: projection, model, starts, solve, covariance; a projected fit that passes is
-    checked on the darkest channel."""
+def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings, colour=None) -> LightAwareEstimate:
+    """One fit of one lobe: projection (``colour``: :func:`_colour_values`' if at hand), model, starts, solve,
+    covariance; a projected fit that passes is checked on the darkest channel."""
     name = "photometric_fit"
     one, clip_level, floor_level = values, s.clip_level, s.floor_level
     lower = missing = how = None
     colour_detail = ""
     if np.ndim(values) == 3:  # the single image a colour ROI is fitted on
-        one, clip_level, lower, missing, colour_detail, how = _colour_values(values, clip_level, s.projection,
-                                                                             bool(s.two_channels), s.clip_margin)
+        one, clip_level, lower, missing, colour_detail, how = colour or _colour_values(
+            values, clip_level, s.projection, bool(s.two_channels), s.clip_margin)
         if lower is not None:
             floor_level = None  # a projection of three channels has no floor of its own
     m = PlaneModel(one, origin_uv, bp_uv, camera, rig, s, clip_level, lower, missing, s.lobe == "ggx")
@@ -348,8 +349,7 @@ def _colour_values(rgb, clip_level, projection: str = "auto", two_channels: bool
         out, how = specular_image(rgb, clip_level, border=False, two_channels=two_channels,
                                   censor_margin=margin), "least_fluctuation"
     hidden = out is not None and not _sees_lobe(out[0], out[2])
-    if hidden:
-        out = None  # the projection's clipped channel hides the lobe: the darkest channel reads it
+    out = None if hidden else out  # (hidden: the projection's clipped channel hides the lobe; the darkest reads it)
     if out is not None:
         values, lower, missing, w = out
         text = "body colours projected out" + ("" if how == "body_colours" else " by the least-fluctuation weights")
