@@ -124,7 +124,7 @@ _PROFILE_PIXELS = 200
 
 def _flat_start(roughness, k):
     """A flat patch of ``k`` parameters (a quadric's or a cubic patch's) at the BP's ray, Phong n ``roughness``."""
-    return np.concatenate([np.zeros(6), [np.log(roughness)], np.zeros(k - 7)])
+    return np.concatenate([np.zeros(QUADRIC_PARAMS - 1), [np.log(roughness)], np.zeros(k - QUADRIC_PARAMS)])
 
 
 def _coarse_profile(S, depths, start_roughness, max_nfev, k):
