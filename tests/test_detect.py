@@ -12,14 +12,14 @@ from hypothesis import strategies as st
 from simtest.reconstruct.detect import (
     BACKGROUND_DIV,
     BACKGROUND_PLATEAU_FACTOR,
-    auto_smooth_sigma_px,
     background_side_px,
     clipped_mask,
     connected_components_with_stats,
     detect_specularities,
     ellipticity,
-    image_smooth_sigma_px,
+    image_noise_sigma,
     mask_labels,
+    noise_sigma,
     validate_image,
 )
 from simtest.reconstruct.detect_pixels import _gray_and_grey, _gray_native, wide_lobe_boxes
@@ -336,18 +336,16 @@ def test_ellipticity_is_its_formula_with_numpys_covariance(seed):
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.sampled_from([np.uint8, np.uint16, np.float32, np.float64]),
        st.booleans())
-def test_the_smoothing_from_the_noise_rows_alone_is_that_of_the_whole_luma(seed, dtype, rgb):
-    # the pipeline converts only the rows the noise estimate reads to luma: the same sigma, to
-    # the bit, as from the luma of the whole image (_gray_native: the detector's luma)
+def test_the_noise_read_on_its_rows_alone_is_that_of_the_whole_luma(seed, dtype, rgb):
+    # the pipeline converts only the rows the noise estimate reads to luma: the same noise (and so
+    # the same smoothing), to the bit, as from the luma of the whole image (_gray_native: the detector's)
     rng = np.random.default_rng(seed)
     shape = (int(rng.integers(3, 400)), int(rng.integers(3, 200))) + ((3,) if rgb else ())
     if dtype in (np.uint8, np.uint16):
         img = rng.integers(0, np.iinfo(dtype).max, shape, dtype=dtype, endpoint=True)
-        fs = float(np.iinfo(dtype).max)
     else:
         img = (rng.random(shape) * rng.uniform(0.5, 2.0)).astype(dtype)
-        fs = max(1.0, float(img.max()))
-    assert image_smooth_sigma_px(img, fs) == auto_smooth_sigma_px(_gray_native(img), fs)
+    assert image_noise_sigma(img) == noise_sigma(_gray_native(img))
 
 
 @settings(max_examples=200, deadline=None)

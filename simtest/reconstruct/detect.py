@@ -27,9 +27,9 @@ from simtest.reconstruct._pixels import Roi, rc_to_uv
 from simtest.reconstruct.candidates import MERGED, NOT_ELLIPTICAL, STATUS_NAMES, TOO_SMALL, Examined, Rules, examine
 # the detection's pixel work, re-exported
 from simtest.reconstruct.detect_pixels import (  # noqa: F401
-    BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, _gray_and_grey, _scope_border, _threshold_mask, auto_smooth_sigma_px,
+    BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, _gray_and_grey, _scope_border, _threshold_mask,
     background_side_px, clipped_mask, colour_luma32, luma_cv2, connected_components, connected_components_with_stats,
-    frame_ceiling, image_noise_sigma, image_smooth_sigma_px, linear_at, local_peak_mask, luma, mask_labels,
+    frame_ceiling, image_noise_sigma, linear_at, local_peak_mask, luma, mask_labels,
     near_ceiling_mask, noise_sigma, smooth_sigma_for_noise
 )
 from simtest.reconstruct.settings import DETECTION_METHODS
@@ -297,7 +297,7 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
         Only the largest ``max_candidates`` components are examined (default None, every one).
     smooth_sigma_px : float or None, optional
         Gaussian smoothing of the luma before thresholding and BP search (0: none; None: chosen
-        from the noise by :func:`auto_smooth_sigma_px`).
+        from the noise by :func:`smooth_sigma_for_noise`).
     method : {"full_scale", "local_peak"}
         ``"full_scale"``: bright pixels are >= ``brightness_rel * full_scale``. ``"local_peak"``:
         bright pixels by :func:`local_peak_mask`; candidates on the endoscope's black border get
@@ -333,7 +333,7 @@ def detect_specularities(image, *, brightness_rel: float = 0.7, full_scale: floa
     gray, grey = _gray_and_grey(img)
     native = gray
     if smooth_sigma_px is None:
-        smooth_sigma_px = auto_smooth_sigma_px(gray, fs)
+        smooth_sigma_px = smooth_sigma_for_noise(noise_sigma(gray), fs)
     if (method == "local_peak" and smooth_sigma_px >= MULTIRES_SIGMA_MIN_PX and min(gray.shape) >= MULTIRES_SIDE_MIN_PX
             and 0.0 < peak_rel < 1.0 and max_candidates != 0):
         det = _detect_half_resolution(

@@ -208,48 +208,9 @@ def _level_bin(levels, full_scale: float) -> np.ndarray:
     return np.fmin(np.fmax(x, 0.0, out=x), NOISE_LEVEL_BINS - 1, out=x).astype(np.int64)
 
 
-def auto_smooth_sigma_px(gray: np.ndarray, full_scale: float) -> float:
-    """Gaussian smoothing for detection and contouring chosen from the image's noise.
-
-    0 when the noise is below 0.5 % of full scale, else ``min(2.5, 1 + noise / (1 % of full scale))``
-    px (2 px cut white noise sevenfold, enough to keep one highlight in one component; more blurs
-    small highlights away).
-
-    Parameters
-    ----------
-    gray : ndarray of shape (H, W)
-    full_scale : float
-
-    Returns
-    -------
-    float
-        Sigma in px, >= 0.
-    """
-    return smooth_sigma_for_noise(noise_sigma(gray), full_scale)
-
-
-def image_smooth_sigma_px(image: np.ndarray, full_scale: float) -> float:
-    """:func:`auto_smooth_sigma_px` of a validated image's luma, computed on the rows the noise
-    estimate reads only (the luma is per pixel, so these are the same values as those rows of
-    the whole image's luma; a 1350 x 1080 RGB frame needs 49 rows of it, not 1080).
-
-    Parameters
-    ----------
-    image : ndarray of shape (H, W) or (H, W, 3)
-        A validated image (:func:`validate_image`).
-    full_scale : float
-
-    Returns
-    -------
-    float
-        Sigma in px, >= 0.
-    """
-    return smooth_sigma_for_noise(image_noise_sigma(image), full_scale)
-
-
 def image_noise_sigma(image: np.ndarray) -> float:
     """:func:`noise_sigma` of a validated image's luma (OpenCV's gray of an RGB image), read on
-    the rows the estimate reads only (what :func:`image_smooth_sigma_px` measures).
+    the rows the estimate reads only (a 1350 x 1080 RGB frame's 49 rows, not 1080: the luma is per pixel).
 
     Parameters
     ----------
@@ -265,7 +226,23 @@ def image_noise_sigma(image: np.ndarray) -> float:
 
 
 def smooth_sigma_for_noise(noise: float, full_scale: float) -> float:
-    """:func:`auto_smooth_sigma_px`'s choice for a measured ``noise`` (image units), px."""
+    """Gaussian smoothing for detection and contouring chosen from the image's noise (:func:`noise_sigma`).
+
+    0 when the noise is below 0.5 % of full scale, else ``min(2.5, 1 + noise / (1 % of full scale))``
+    px (2 px cut white noise sevenfold, enough to keep one highlight in one component; more blurs
+    small highlights away).
+
+    Parameters
+    ----------
+    noise : float
+        The noise's standard deviation, image units.
+    full_scale : float
+
+    Returns
+    -------
+    float
+        Sigma in px, >= 0.
+    """
     s = noise / full_scale
     return 0.0 if s < 0.005 else float(min(2.5, 1.0 + s / 0.01))
 

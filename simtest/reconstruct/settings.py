@@ -129,7 +129,7 @@ class ReconSettings:
         Intensity normalisation, see :class:`Normalisation` (stored as the enum).
     smooth_sigma_px : float or None
         Gaussian smoothing sigma, px, before detection and contouring; 0 for none; None: chosen from
-        the noise (:func:`~simtest.reconstruct.detect.auto_smooth_sigma_px`). Finite, in [0, 100].
+        the noise (:func:`~simtest.reconstruct.detect.smooth_sigma_for_noise`). Finite, in [0, 100].
     allow_open : bool
         Fit an isophote cut by the ROI or image border (flagged ``closed=False``).
     full_scale : float, optional

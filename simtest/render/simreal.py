@@ -22,7 +22,8 @@ import numpy as np
 from skimage.measure import label
 
 from simtest.constants import LUMA_BT601
-from simtest.reconstruct.detect import default_full_scale, detect_specularities, image_smooth_sigma_px
+from simtest.reconstruct.detect import (default_full_scale, detect_specularities, image_noise_sigma,
+                                        smooth_sigma_for_noise)
 from simtest.reconstruct.images import quiet_stderr
 from simtest.reconstruct.settings import ReconSettings
 
@@ -166,8 +167,8 @@ def _detector_count(frame: np.ndarray) -> int:
     fs = default_full_scale(frame)
     det = detect_specularities(frame, brightness_rel=st.brightness_rel, full_scale=fs,
                                saturation_level=st.saturation_level, min_area_px=st.min_area_px,
-                               smooth_sigma_px=image_smooth_sigma_px(frame, fs), method=st.detection,
-                               peak_rel=st.peak_rel, max_candidates=None)
+                               smooth_sigma_px=smooth_sigma_for_noise(image_noise_sigma(frame), fs),
+                               method=st.detection, peak_rel=st.peak_rel, max_candidates=None)
     return det.n_components
 
 
