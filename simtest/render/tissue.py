@@ -39,6 +39,7 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 
 from simtest.render.vessels import TILE_MM, transmission_map
+from simtest.specular.fresnel import fresnel_dielectric
 
 __all__ = ["TISSUE_ALBEDO", "TISSUE_SEED_KEY", "N_WAVES", "N_RELIEF_WAVES", "RELIEF_HURST", "RELIEF_MIN_MM",
            "TissueParams", "tissue_params", "with_neighbours", "in_camera", "surface_uv", "vessel_transmission",
@@ -403,15 +404,6 @@ def film_alpha(xp, p, t: TissueParams, alpha: float):
     return xp.minimum(xp.maximum(a, 0.002), 1.0)
 
 
-def _fresnel_dielectric(xp, cos_i, eta):
-    """Unpolarised Fresnel reflectance of a dielectric (exact), ``cos_i`` in [0, 1], ``eta`` = n2/n1."""
-    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
-    cos_t = xp.sqrt(xp.maximum(1.0 - sin2_t, 0.0))
-    rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
-    rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
-    return 0.5 * (rs * rs + rp * rp)
-
-
 def specular_lobe(xp, n, wi, wo, lobe: str, alpha: float, phong_n: float, ior: float, c: float):
     """Specular BRDF of the wet film for unit (x, y, z) tuples n, wi (to the camera), wo (to the light).
 
@@ -449,6 +441,6 @@ def specular_lobe(xp, n, wi, wo, lobe: str, alpha: float, phong_n: float, ior: f
             t2 = (1.0 - cos * cos) / (cos * cos)
             return 2.0 / (1.0 + xp.sqrt(1.0 + a2 * t2))
     cos_ih = xp.maximum(wi[0] * hx + wi[1] * hy + wi[2] * hz, 0.0)
-    F = _fresnel_dielectric(xp, cos_ih, ior)
+    F = fresnel_dielectric(cos_ih, ior, xp)
     val = c * F * D * g1(ci) * g1(co) / (4.0 * ci * co)
     return xp.where(ok, val, 0.0)

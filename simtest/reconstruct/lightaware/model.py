@@ -15,6 +15,7 @@ from simtest.geometry.angles import unit
 from simtest.geometry.camera import validate_intrinsics
 from simtest.geometry.conics import plane_basis
 from simtest.geometry.lights import LightRig
+from simtest.specular.fresnel import fresnel_dielectric
 
 
 class _Kinv:
@@ -411,15 +412,6 @@ def _curvature_columns(dT, rl, n, h, rig_arr, rough, apex) -> np.ndarray:
     return out
 
 
-def _fresnel_dielectric(cos_i, eta):
-    """Unpolarised Fresnel reflectance of a dielectric interface (exact), ``cos_i`` in [0, 1]."""
-    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
-    cos_t = np.sqrt(np.maximum(1.0 - sin2_t, 0.0))
-    rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
-    rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
-    return 0.5 * (rs * rs + rp * rp)
-
-
 def _rig_value_ggx(dT, rl, n, h, rig_arr, alpha, ior: float = GGX_FILM_IOR, parts=None):
     """The rig's GGX lobes under a dielectric film on the plane (n, h) along unit rays ``dT`` (3, N):
     ``S = sum_j w_j F D G1(v) G1(l_j) / (4 n . v) f_j p_j``, the renderer's wet film
@@ -464,7 +456,7 @@ def _ggx_lobe(delta, s, sl, ir, c, a2, ior, F=None):
 
 def _fresnel_of_vl(vl, ior):
     """Fresnel's reflectance ``F(v . m)``, ``v . m = sqrt((1 + v . l) / 2)``, from ``vl = v . l``."""
-    return _fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
+    return fresnel_dielectric(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), ior)
 
 
 #: Step in ``v . l`` of :func:`_rig_grad_ggx`'s central difference of Fresnel's factor.
