@@ -9,7 +9,7 @@ Rules (the README's "Where things live" section says why):
 
 - ``simtest.geometry`` and ``simtest.specular`` import nothing of simtest beyond each other and the
   base modules (``_io``, ``_checks``, ``_config``, ``_lazy``, ``_version``, ``tolerances``,
-  ``constants``, ``decisions``);
+  ``constants``, ``decisions``, ``provenance``);
 - ``simtest.simulate`` (closed-form images and ground truths) imports only geometry, specular,
   itself and the base modules: the renderer imports its truths, never the reverse;
 - ``simtest.reconstruct`` imports no ``simtest.render``, ``simtest.scene``, ``simtest.harness``,
@@ -32,7 +32,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "simtest"
 
 BASE = {"simtest._io", "simtest._checks", "simtest._config", "simtest._lazy", "simtest._version",
-        "simtest.tolerances", "simtest.constants", "simtest.decisions"}
+        "simtest.tolerances", "simtest.constants", "simtest.decisions", "simtest.provenance"}
 RULES = {
     # room -> (allowed simtest prefixes or None for "anything of simtest", forbidden prefixes)
     "simtest.geometry": ({"simtest.geometry", "simtest.specular", *BASE}, {"mitsuba", "drjit"}),
