@@ -155,6 +155,24 @@ MULTIRES_SIDE_MIN_PX = decision(
     "MULTIRES_SIDE_MIN_PX", 256, "px",
     "... on frames whose sides are at least this long (a small frame costs little at full "
     "resolution).", basis="convention", stage=_D)
+SMOOTH_NOISE_MIN_REL = decision(
+    "SMOOTH_NOISE_MIN_REL", 0.005, "fraction of full scale (the noise's standard deviation)",
+    "Detection and contouring are not smoothed below this pixel noise (noise_sigma): renders and clean "
+    "frames, 8-bit JPEG ringing included, read below it, and smoothing them only blurs small highlights. "
+    "Chosen with the local-peak detection itself, on the real frames and renders then at hand (e2b9f46). "
+    "On an 8-bit luma the estimate moves in steps of 0.24 % (its MAD counts half levels): the bar lies "
+    "between the steps 0.47 % and 0.71 %.", basis="tuned", stage=_D,
+    chosen_on=("banner-labelled", "banner-tiles", "bundled-renders"),
+    n="24 banner frames, 3 tiles, every bundled scene at seed 0")
+SMOOTH_NOISE_PER_PX_REL = decision(
+    "SMOOTH_NOISE_PER_PX_REL", 0.01, "fraction of full scale per px of Gaussian sigma",
+    "Above that bar the sigma is 1 px plus 1 px per this much noise: a Gaussian of sigma s divides "
+    "white noise by 2 s sqrt(pi), so 2 px at 1 % of full scale leave 0.14 %, below the bar.",
+    basis="physics", stage=_D)
+SMOOTH_SIGMA_MAX_PX = decision(
+    "SMOOTH_SIGMA_MAX_PX", 2.5, "px (Gaussian sigma)",
+    "... and at most this (reached at 1.5 % noise): a wider Gaussian blurs the smallest highlights "
+    "(MIN_AREA_PX) below their local background's texture.", basis="convention", stage=_D)
 
 ROI_GROWTH_FACTOR = decision(
     "ROI_GROWTH_FACTOR", 2.0, "factor of the ROI's side",

@@ -9,7 +9,8 @@ import numpy as np
 
 from simtest.constants import LUMA_BT601
 from simtest.decisions import (BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, CLIP_LUMA_MARGIN_REL, CLIP_MARGIN_REL,
-                               CODEC_CEILING_SPIKE, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES, TOPHAT_MIN_REL)
+                               CODEC_CEILING_SPIKE, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES, SMOOTH_NOISE_MIN_REL,
+                               SMOOTH_NOISE_PER_PX_REL, SMOOTH_SIGMA_MAX_PX, TOPHAT_MIN_REL)
 from simtest.reconstruct.jpeg import MCU_PX, jpeg_grid
 
 _LUMA = np.array(LUMA_BT601)
@@ -228,9 +229,9 @@ def image_noise_sigma(image: np.ndarray) -> float:
 def smooth_sigma_for_noise(noise: float, full_scale: float) -> float:
     """Gaussian smoothing for detection and contouring chosen from the image's noise (:func:`noise_sigma`).
 
-    0 when the noise is below 0.5 % of full scale, else ``min(2.5, 1 + noise / (1 % of full scale))``
-    px (2 px cut white noise sevenfold, enough to keep one highlight in one component; more blurs
-    small highlights away).
+    0 when the noise is below :data:`~simtest.decisions.SMOOTH_NOISE_MIN_REL` of full scale (0.5 %), else
+    1 px plus 1 px per :data:`~simtest.decisions.SMOOTH_NOISE_PER_PX_REL` (1 %), at most
+    :data:`~simtest.decisions.SMOOTH_SIGMA_MAX_PX` (2.5 px); the reasons are theirs.
 
     Parameters
     ----------
@@ -244,7 +245,7 @@ def smooth_sigma_for_noise(noise: float, full_scale: float) -> float:
         Sigma in px, >= 0.
     """
     s = noise / full_scale
-    return 0.0 if s < 0.005 else float(min(2.5, 1.0 + s / 0.01))
+    return 0.0 if s < SMOOTH_NOISE_MIN_REL else float(min(SMOOTH_SIGMA_MAX_PX, 1.0 + s / SMOOTH_NOISE_PER_PX_REL))
 
 
 def _area_reduced(img: np.ndarray, f: int, halves: list | None = None) -> np.ndarray:
