@@ -15,8 +15,8 @@ from simtest.reconstruct.lightaware.model import _curvature_columns, _mean_light
 from simtest.reconstruct.lightaware.plane_model import PlaneModel
 from simtest.reconstruct.lightaware.plane_solve import _FLOOR_MARGIN
 from simtest.reconstruct.lightaware.solve import (
-    _cluster_covariance, _correlated, _correlation_area, _curvature_score, _curvature_shift, _hac_covariance, _misfit,
-    cluster_blocks,
+    _cluster_covariance, _cluster_terms, _correlated, _correlation_area, _curvature_score, _curvature_shift,
+    _hac_covariance, _misfit, cluster_blocks,
 )
 
 
@@ -152,8 +152,9 @@ class PlaneVerdict:
         if est.normal_sigma_deg and jackknife:
             # at least the cluster jackknife's over the blocks; the depth's sigma grows by the same factor
             J = self._jacobian()
+            terms = _cluster_terms(J, r0, m.sel, m.keep.shape[1])  # (read by every block side)
             for block in cluster_blocks(m.keep.shape, texture=wide or self.how in (None, "darkest_channel")):
-                cov = _cluster_covariance(J, r0, m.sel, m.keep.shape, block)  # None: no test
+                cov = _cluster_covariance(J, r0, m.sel, m.keep.shape, block, terms)  # None: no test
                 csig = -1.0 if cov is None else math.degrees(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)))
                 if csig > est.normal_sigma_deg:
                     scale *= csig / est.normal_sigma_deg

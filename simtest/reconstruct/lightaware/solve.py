@@ -466,32 +466,41 @@ def cluster_blocks(shape, texture: bool = True) -> tuple[int, ...]:
     return ok or CLUSTER_PX[:1]
 
 
-def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0]) -> np.ndarray | None:
+def _cluster_terms(J, r, sel, width: int) -> tuple:
+    """What :func:`_cluster_covariance` reads for every block side: ``(unit_cov or None, rows, cols, X, J^T J)``,
+    X the per-pixel products ``J^T r`` and the upper triangle of ``J^T J`` (k + k (k + 1) / 2 rows)."""
+    unit_cov = _covariance(J, 1.0)
+    rows, cols = np.divmod(np.asarray(sel), width)
+    Jt = np.ascontiguousarray(J.T)
+    iu, ju = np.triu_indices(J.shape[1])  # J_c^T J_c is symmetric: its upper triangle summed, then mirrored
+    return unit_cov, rows, cols, np.concatenate([Jt * np.asarray(r, np.float64), Jt[iu] * Jt[ju]]), J.T @ J
+
+
+def _cluster_covariance(J, r, sel, shape, block: int = CLUSTER_PX[0], terms=None) -> np.ndarray | None:
     """The cluster-robust covariance (k, k) over ``block`` x ``block`` px blocks: the delete-one-block
     jackknife (CR3 [8]_); None when J^T J is singular or fewer than two blocks hold pixels.
 
     Per block c, ``d_c = (J^T J - J_c^T J_c)^-1 J_c^T r_c`` and
     ``C = (G - 1) / G sum_c (d_c - mean d)(d_c - mean d)^T`` over the G blocks that hold pixels;
-    ``J``, ``r``, ``sel``, ``shape`` as :func:`_hac_covariance`'s.
+    ``J``, ``r``, ``sel``, ``shape`` as :func:`_hac_covariance`'s; ``terms``: their :func:`_cluster_terms`, if at
+    hand (several block sides of one fit).
 
     References
     ----------
     .. [8] A. C. Cameron, D. L. Miller, "A practitioner's guide to cluster-robust inference",
            J. Human Resources 50(2), 317-372, 2015. https://doi.org/10.3368/jhr.50.2.317
     """
-    unit_cov = _covariance(J, 1.0)
+    unit_cov, rows, cols, X, A = _cluster_terms(J, r, sel, shape[1]) if terms is None else terms
     if unit_cov is None:
         return None
-    rows, cols = np.divmod(np.asarray(sel), shape[1])
     cid = (rows // block) * -(-shape[1] // block) + cols // block  # raster order of the blocks
     held = np.flatnonzero(np.bincount(cid))  # the blocks that hold pixels
     if (G := len(held)) < 2:
         return None
-    k, Jt = J.shape[1], np.ascontiguousarray(J.T)
-    iu, ju = np.triu_indices(k)  # J_c^T J_c is symmetric: its upper triangle summed, then mirrored
-    X = np.concatenate([Jt * np.asarray(r, np.float64), Jt[iu] * Jt[ju]])
+    k = J.shape[1]
+    iu, ju = np.triu_indices(k)
     sums = np.stack([np.bincount(cid, x)[held] for x in X], axis=1)  # per block: J_c^T r_c, J_c^T J_c
-    S, A, rest = sums[:, :k], J.T @ J, np.empty((G, k, k))
+    S, rest = sums[:, :k], np.empty((G, k, k))
     rest[:, iu, ju] = rest[:, ju, iu] = A[iu, ju] - sums[:, k:]  # J^T J without each block's rows
     # a block whose removal leaves J^T J (near) singular is counted as the plain sandwich counts it
     ev = np.linalg.eigvalsh(rest)
