@@ -22,8 +22,7 @@ import numpy as np
 from skimage.measure import label
 
 from simtest.constants import LUMA_BT601
-from simtest.reconstruct.detect import (default_full_scale, detect_specularities, image_noise_sigma,
-                                        smooth_sigma_for_noise)
+from simtest.reconstruct.detect import default_full_scale, detect_specularities
 from simtest.reconstruct.images import quiet_stderr
 from simtest.reconstruct.settings import ReconSettings
 
@@ -167,8 +166,8 @@ def _detector_count(frame: np.ndarray) -> int:
     fs = default_full_scale(frame)
     det = detect_specularities(frame, brightness_rel=st.brightness_rel, full_scale=fs,
                                saturation_level=st.saturation_level, min_area_px=st.min_area_px,
-                               smooth_sigma_px=smooth_sigma_for_noise(image_noise_sigma(frame), fs),
-                               method=st.detection, peak_rel=st.peak_rel, max_candidates=None)
+                               smooth_sigma_px=None, method=st.detection, peak_rel=st.peak_rel,
+                               max_candidates=None)  # (None: the smoothing chosen from the frame's noise)
     return det.n_components
 
 
