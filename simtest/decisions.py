@@ -171,8 +171,8 @@ SMOOTH_NOISE_PER_PX_REL = decision(
     basis="physics", stage=_D)
 SMOOTH_SIGMA_MAX_PX = decision(
     "SMOOTH_SIGMA_MAX_PX", 2.5, "px (Gaussian sigma)",
-    "... and at most this (reached at 1.5 % noise): a wider Gaussian blurs the smallest highlights "
-    "(MIN_AREA_PX) below their local background's texture.", basis="convention", stage=_D)
+    "... and at most this (reached at 1.5 % noise): 2 px already keep one highlight in one component; "
+    "a wider Gaussian blurs small highlights away (e2b9f46).", basis="convention", stage=_D)
 
 ROI_GROWTH_FACTOR = decision(
     "ROI_GROWTH_FACTOR", 2.0, "factor of the ROI's side",

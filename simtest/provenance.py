@@ -151,7 +151,7 @@ def decision(name: str, value, unit: str, why: str, *, basis: str, stage: str,
     Parameters
     ----------
     name : str
-        The module-level name it is bound to here (and imported by).
+        The module-level name it is bound to in :mod:`simtest.decisions` (and imported by).
     value : float, int, tuple or ndarray
     unit : str
     why : str
