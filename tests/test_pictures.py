@@ -4,6 +4,7 @@ rendered off-screen, and reconstruct's outputs as a set with its bad-input refus
 from __future__ import annotations
 
 import copy
+from collections import Counter
 import json
 import os
 
@@ -99,6 +100,26 @@ def test_overlay_draws_only_ok_estimates_by_default(tmp_path):
     crop = (slice(0, 40), slice(560, 640))  # around the rejected BP (201.5, 1.5), drawn 700/240 larger
     assert colour_pixels(b[crop], "#ff0000", tol=60) > colour_pixels(a[crop], "#ff0000", tol=60)
     assert colour_pixels(a, red) > 0
+
+
+def test_the_recommended_normal_is_the_widest_needle_whatever_gives_it(tmp_path, monkeypatch):
+    # the normal a user gets is drawn (cyan, under the others) even where its source is drawn too, e.g.
+    # the BP ray, whose own needle is thin and dashed; the legend names every source with its count
+    K = np.array([[300.0, 0, 119.5], [0, 300, 119.5], [0, 0, 1]])
+    t = np.radians(12)
+    img = phong_plane_image(K, (240, 240), [np.sin(t), 0, -np.cos(t)], 500.0, 60)
+    ok = [e for e in reconstruct(img, K, [0.2, 0.4]) if e.ok]
+    assert ok and all(e.recommended.normal_from in overlay_mod.DEFAULT_ESTIMATORS for e in ok)
+    legends = []
+    monkeypatch.setattr(overlay_mod, "_legend", lambda canvas, title, entries: legends.append(entries))
+    png = cv2.imread(str(draw_overlay(tmp_path / "a.png", img, ok, K)))
+    cyan = colour_pixels(png, estimator_colour("normal"), tol=30)
+    one = cv2.imread(str(draw_overlay(tmp_path / "b.png", img, ok, K, estimators=["normal"])))
+    # (the others drawn over it leave its rim: at least a fifth of the needle drawn alone)
+    assert cyan > 0.2 * colour_pixels(one, estimator_colour("normal"), tol=30) > 0
+    label = next(lab for lab, _, kind in legends[0] if lab.startswith("normal"))
+    whence = Counter(e.recommended.normal_from for e in ok)
+    assert label == "normal (recommended: " + ", ".join(f"{k} {v}" for k, v in whence.most_common()) + ")"
 
 
 def test_overlay_too_large_for_memory_is_refused_before_anything_is_written(tmp_path, monkeypatch):

@@ -2,7 +2,8 @@
 
 A normal n at the BP is drawn as a gauge-figure needle from the BP along ``(n_x, n_y)`` of the
 camera-frame normal (a perspective projection would put every co-located normal onto the BP).
-One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its count. By
+One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its count; the
+recommended normal, what the command gives, is the widest needle, under its source's. By
 default only ``ok`` estimates (``show_rejected`` adds red crosses), the primary isophote as a thin
 outline, and a needle length from the highlights' spacing (:func:`needle_length_px`). Drawn with
 OpenCV on an 8-bit copy; :func:`check_overlay_size` refuses, before anything is written, an image
@@ -199,10 +200,7 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     ok = [e for e in estimates if e.ok]
     rejected = [e for e in estimates if not e.ok]
     names = list(estimators) if estimators is not None else list(DEFAULT_ESTIMATORS)
-    normals = [_normals_of(e) for e in ok]
-    for d, e in zip(normals, ok):  # the recommended normal is drawn only if its source is not
-        if e.recommended.normal_from in names:
-            d.pop("normal", None)
+    normals = [_normals_of(e) for e in ok]  # (the recommended normal first: the widest needle, under its source's)
     present = [n for n in names if any(n in d for d in normals)]
     bps = np.array([e.bp_px for e in ok], dtype=np.float64).reshape(-1, 2)
     length_px = needle_length * max(h, w) if needle_length is not None else needle_length_px(bps, disp.shape)
@@ -237,7 +235,7 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
             if len(rejected) <= 30:
                 cv2.putText(canvas, e.status, (u + 4, v - 4), _FONT, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
     whence = normals_from(ok)
-    entries = [(_entry_label(n, whence, names), estimator_colour(n), "dash" if n == "bp_ray" else "line")
+    entries = [(_entry_label(n, whence), estimator_colour(n), "dash" if n == "bp_ray" else "line")
                for n in present]
     entries.append(("isophote (primary)", "#ffff00", "thin"))
     entries.append(("BP", "#ffffff", "dot"))
@@ -278,13 +276,11 @@ def _needle(canvas, a, b, colour, thick: int, *, dashed: bool = False) -> None:
         cv2.line(canvas, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), colour, thick, cv2.LINE_AA, _SHIFT)
 
 
-def _entry_label(name: str, whence: dict[str, int], names: list) -> str:
+def _entry_label(name: str, whence: dict[str, int]) -> str:
     """A drawn estimator's legend label with how many ok highlights' recommended normal it gives (``whence``:
-    :func:`~simtest.reconstruct.recommend.normals_from`; ``normal``: the recommended normals of the estimators not
-    drawn, by estimator); under a rig the BP ray's, pointing at the camera, is a needle too short to see."""
+    :func:`~simtest.reconstruct.recommend.normals_from`; ``normal``: the recommended normals, by estimator)."""
     if name == "normal":
-        other = {k: v for k, v in whence.items() if k not in names}
-        return f"normal (recommended: {counts_text(other)})" if other else name
+        return f"normal (recommended: {counts_text(whence)})" if whence else name
     return f"{name} (recommended for {whence[name]})" if whence.get(name) else name
 
 
