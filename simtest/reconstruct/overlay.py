@@ -2,8 +2,8 @@
 
 A normal n at the BP is drawn as a gauge-figure needle from the BP along ``(n_x, n_y)`` of the
 camera-frame normal (a perspective projection would put every co-located normal onto the BP).
-One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its count; the
-recommended normal, what the command gives, is the widest needle, under its source's. By
+One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its count; in the
+default order the recommended normal, what the command gives, is the widest needle, under its source's. By
 default only ``ok`` estimates (``show_rejected`` adds red crosses), the primary isophote as a thin
 outline, and a needle length from the highlights' spacing (:func:`needle_length_px`). Drawn with
 OpenCV on an 8-bit copy; :func:`check_overlay_size` refuses, before anything is written, an image
@@ -200,7 +200,7 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     ok = [e for e in estimates if e.ok]
     rejected = [e for e in estimates if not e.ok]
     names = list(estimators) if estimators is not None else list(DEFAULT_ESTIMATORS)
-    normals = [_normals_of(e) for e in ok]  # (the recommended normal first: the widest needle, under its source's)
+    normals = [_normals_of(e) for e in ok]  # (each with its recommended normal: drawn too where its source is)
     present = [n for n in names if any(n in d for d in normals)]
     bps = np.array([e.bp_px for e in ok], dtype=np.float64).reshape(-1, 2)
     length_px = needle_length * max(h, w) if needle_length is not None else needle_length_px(bps, disp.shape)
