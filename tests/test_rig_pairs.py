@@ -227,11 +227,13 @@ def test_a_users_isovalue_reaches_the_isolation_check():
     # ok (its neighbour lies beyond 3 semi-major axes of its t = 0.7 isophote plus 2 px). A
     # user's t = 0.5 isophote is wider; the reach once counted 3 of its axes, a check built
     # for another isophote, and called the same glint a cluster. The reach now covers the same
-    # extent of the lobe whatever the isovalue.
-    from test_verify import WHITE, K, _at, _frame
+    # extent of the lobe whatever the isovalue. (A camera of f 90 px, whose GLINT_FIELD_DEG spans 6.3
+    # px: the glint-field floor of the reach stays inside the spacing, and the isophote's reach decides.)
+    from test_verify import WHITE, _at, _frame
 
     from simtest.reconstruct.pipeline import reconstruct
 
+    K = np.array([[90.0, 0, 99.5], [0, 90.0, 99.5], [0, 0, 1]])
     img = _frame([(100, 100, 1.5, 150, WHITE), (107, 100, 1.5, 140, WHITE)])
     for t in ((0.7, 0.85), (0.5, 0.85), (0.6, 0.85)):
         e = _at(reconstruct(img, K, isovalues=t), 100, 100)

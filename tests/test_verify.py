@@ -103,6 +103,36 @@ def test_the_same_glints_far_apart_are_each_ok():
     assert _at(ests, 140, 100).status == "ok"
 
 
+@pytest.mark.parametrize("f", [150.0, 300.0, 600.0])
+def test_a_glint_fields_reach_is_its_angle_at_the_principal_point(f):
+    # exact: an equidistant lens and a pinhole both image GLINT_FIELD_DEG at the principal point as f px per
+    # radian (a fisheye without distortion terms is equidistant); float64 Jacobians of unit rays: 1e-9 px
+    from simtest.decisions import GLINT_FIELD_DEG
+    from simtest.geometry.cameras import FisheyeCamera, PinholeCamera
+    from simtest.reconstruct.verify import glint_field_px
+    Kf = np.array([[f, 0, 99.5], [0, f, 99.5], [0, 0, 1]])
+    want = f * np.radians(GLINT_FIELD_DEG)
+    for cam in (Kf, PinholeCamera(Kf, None, (200, 200)), FisheyeCamera(Kf, np.zeros(4), (200, 200))):
+        assert abs(glint_field_px(cam) - want) < 1e-9
+
+
+def test_comparable_glints_within_the_glint_fields_angle_are_a_cluster_whatever_their_size():
+    # two white glints 15 px apart, each beyond its own lobe's reach (3 semi-major axes of its t = 0.7
+    # isophote, about 1.7 px, plus 2 px): through f 300 px they lie 2.9 deg apart, inside GLINT_FIELD_DEG
+    # (21 px), one micro-relief's glints; through f 150 px, 5.7 deg apart, each a highlight of its own.
+    # Under a rig of separate lights the other guide's lobe is expected near, and the floor is not applied.
+    from simtest.geometry.lights import Light, LightRig
+    img = _frame([(90, 100, 2.0, 150, WHITE), (105, 100, 2.0, 140, WHITE)])
+    near = reconstruct(img, K)
+    assert [_at(near, u, 100).status for u in (90, 105)] == ["cluster", "cluster"]
+    assert "other specular peak" in _at(near, 90, 100).detail
+    wide = reconstruct(img, np.array([[150.0, 0, 99.5], [0, 150.0, 99.5], [0, 0, 1]]))
+    assert [_at(wide, u, 100).status for u in (90, 105)] == ["ok", "ok"]
+    rig = LightRig(tuple(Light((x, 0.0, 0.0), 1.0, "inverse_square", 0.0) for x in (-4.0, 4.0)))
+    rigged = reconstruct(img, K, lights=rig)
+    assert all("other specular peak" not in _at(rigged, u, 100).detail for u in (90, 105))
+
+
 def test_a_glint_drawn_on_a_flat_panel_is_an_overlay():
     img = _frame([(100, 100, 3.0, 150, WHITE)], panel=(60, 140, 60, 140))
     # a white mark drawn on the panel (burnt-in text is drawn, not imaged: no noise)

@@ -40,9 +40,9 @@ import numpy as np
 
 from simtest.decisions import (PALENESS_MAX, WHITE_CHROMA, WHITE_SHARE_MIN, SIGNIFICANCE_MIN, CONTRAST_MIN,
                                PANEL_STD_REL, PANEL_MIN_AREA, PANEL_FRACTION_MAX, NEIGHBOUR_REL, NEIGHBOUR_AREA_REL,
-                               VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX, SURROUND_REL, OWN_REL,
-                               SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX, QUANTISATION_SIGMA_LSB,
-                               CONFIDENCE_COEFFICIENTS as COEFFICIENTS)
+                               VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX, GLINT_FIELD_DEG, SURROUND_REL,
+                               OWN_REL, SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX,
+                               QUANTISATION_SIGMA_LSB, CONFIDENCE_COEFFICIENTS as COEFFICIENTS)
 from simtest.geometry.response import srgb_inverse
 from simtest.reconstruct import evidence_pixels as px
 from simtest.reconstruct._pixels import uv_to_rc
@@ -510,6 +510,15 @@ def _reach_axes(t) -> np.ndarray:
     return NEIGHBOUR_REACH * np.sqrt(np.log(1.0 / _REACH_T) / np.log(1.0 / np.asarray(t, np.float64)))
 
 
+def glint_field_px(camera) -> float:
+    """:data:`~simtest.decisions.GLINT_FIELD_DEG` in px at the principal point of ``camera`` (a
+    :class:`~simtest.geometry.cameras.CameraModel` or pinhole K): the least of its two axes' px per radian."""
+    if isinstance(camera, np.ndarray):
+        return float(min(camera[0, 0], camera[1, 1])) * math.radians(GLINT_FIELD_DEG)
+    rad_per_px = np.linalg.norm(camera.pixel_to_ray_jacobian(camera.principal_point[None])[0], axis=0)
+    return math.radians(GLINT_FIELD_DEG) / float(rad_per_px.max())
+
+
 def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, windowed: bool | None = None,
            noise: float | None = None, grey: bool = False, camera=None, lights=None, response=None,
            background_px: int | None = None):
@@ -569,6 +578,9 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         inside[f] = px.ellipse_level(SimpleNamespace(center=(cu, cv), semi_axes=(a, b), angle_rad=ang),
                                    bps[f, 0], bps[f, 1]) <= 1.0
         reach[f] = np.where(ok[f], _reach_axes(t[f]) * a + OWN_RADIUS_PX, np.nan)
+    # the neighbours' reach: under one light place, a glint field's lie within an angle of view (NaN kept)
+    one_place = camera is not None and not (lights is not None and lights.has_separate_lights)
+    near = np.maximum(reach, glint_field_px(camera)) if one_place else reach
     expected = None
     if lights is not None and camera is not None and lights.has_separate_lights:
         # out to the reach plus the own lobe's radius at OWN_REL
@@ -579,7 +591,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
     ev = frame_evidence(image, gray, bps, [e.roi for e in ests], full_scale=full_scale,
                         noise=noise_sigma(gray) if noise is None else float(noise),
                         background_px=background_px or background_side_px(gray.shape),
-                        reach_px=reach, ellipses=ells, windowed=windowed, grey=grey, expected=expected,
+                        reach_px=near, ellipses=ells, windowed=windowed, grey=grey, expected=expected,
                         panels=ok, response=response)
     clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
     # the surround, for the candidates that pass every check before it; the others' share counts as 1
