@@ -34,7 +34,7 @@ REASONS: dict[str, str] = {
     # specularity checks of a fitted candidate (simtest.reconstruct.verify)
     "overlay": "the candidate lies on a flat panel: a burnt-in overlay (text, box, UI), not tissue",
     "not_specular": "the peak is not specular: not paler than the tissue, or not well above the diffuse level",
-    "cluster": "another specular peak lies inside the candidate's isophote region (clustered glints)",
+    "cluster": "another specular peak in the isophote region, or without a rig in a glint field's angle of view",
     "bad_fit": "the isophote is no ellipse around the BP: residual too large for its size, or BP outside",
     "low_confidence": "the fit passes every check but its confidence is below min_confidence",
     "weak_twin": "a weak white peak that passes for its rig twin, until its plane fit confirms it (the rig's step "

@@ -15,7 +15,8 @@ A candidate earns ``ok`` when it passes, in order (numbers and their reasons: :m
   is exempt from the paleness and contrast bars (:meth:`Evidence.with_twins`); one below the contrast bar is
   ``weak_twin`` until its plane fit confirms the twin (:data:`WEAK_TWIN`);
 - **isolated** (``cluster``): no other specular peak of at least :data:`NEIGHBOUR_REL` of its height
-  beyond :data:`OWN_RADIUS_PX` of the BP (another guide's excepted, :mod:`simtest.reconstruct.rig_pairs`),
+  beyond :data:`OWN_RADIUS_PX` of the BP (another guide's excepted, :mod:`simtest.reconstruct.rig_pairs`)
+  within its isophotes' reach or, under one light place, :data:`GLINT_FIELD_DEG` of view (a glint field),
   and at most :data:`SURROUND_FRACTION_MAX` of its surround lit by other light;
 - **nested ellipses** (``bad_fit``): primary isophote RMS residual at most :data:`RESIDUAL_MAX_REL` of
   its semi-minor axis, BP inside it, semi-minor axis at least :data:`MINOR_AXIS_MIN_PX`.
@@ -578,9 +579,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         inside[f] = px.ellipse_level(SimpleNamespace(center=(cu, cv), semi_axes=(a, b), angle_rad=ang),
                                    bps[f, 0], bps[f, 1]) <= 1.0
         reach[f] = np.where(ok[f], _reach_axes(t[f]) * a + OWN_RADIUS_PX, np.nan)
-    # the neighbours' reach: under one light place, a glint field's lie within an angle of view (NaN kept)
     one_place = camera is not None and not (lights is not None and lights.has_separate_lights)
-    near = np.maximum(reach, glint_field_px(camera)) if one_place else reach
+    near = np.maximum(reach, glint_field_px(camera)) if one_place else reach  # (a glint field's, NaN kept)
     expected = None
     if lights is not None and camera is not None and lights.has_separate_lights:
         # out to the reach plus the own lobe's radius at OWN_REL
