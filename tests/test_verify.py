@@ -133,6 +133,27 @@ def test_comparable_glints_within_the_glint_fields_angle_are_a_cluster_whatever_
     assert all("other specular peak" not in _at(rigged, u, 100).detail for u in (90, 105))
 
 
+@pytest.mark.parametrize("f, status", [(300.0, "cluster"), (150.0, "ok")])
+def test_simtest_reconstruct_reads_the_glint_fields_angle_from_the_users_camera_file(tmp_path, f, status):
+    # the command a user types, with a camera file of each focal length: the same frame as above
+    from PIL import Image
+    from typer.testing import CliRunner
+
+    from simtest.cli import app
+    from simtest.geometry.camera_file import save_camera
+    from simtest.geometry.cameras import PinholeCamera
+    from simtest.reconstruct import read_estimates
+    Image.fromarray(_frame([(90, 100, 2.0, 150, WHITE), (105, 100, 2.0, 140, WHITE)])).save(tmp_path / "f.png")
+    K_f = np.array([[f, 0, 99.5], [0, f, 99.5], [0, 0, 1]])
+    save_camera(tmp_path / "camera.json", PinholeCamera(K_f, None, (200, 200)))
+    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "f.png"), "-k", str(tmp_path / "camera.json"),
+                                   "-o", str(tmp_path / "out"), "--no-overlay"])
+    assert res.exit_code == 0, res.output
+    rows = read_estimates(tmp_path / "out" / "estimates.json")["specularities"]
+    near = [r for r in rows if min(np.hypot(r["bp_px"][0] - u, r["bp_px"][1] - 100) for u in (90, 105)) < 3]
+    assert [r["status"] for r in near] == [status, status], near
+
+
 def test_a_glint_drawn_on_a_flat_panel_is_an_overlay():
     img = _frame([(100, 100, 3.0, 150, WHITE)], panel=(60, 140, 60, 140))
     # a white mark drawn on the panel (burnt-in text is drawn, not imaged: no noise)
