@@ -512,8 +512,19 @@ def _reach_axes(t) -> np.ndarray:
 
 
 def glint_field_px(camera) -> float:
-    """:data:`~simtest.decisions.GLINT_FIELD_DEG` in px at the principal point of ``camera`` (a
-    :class:`~simtest.geometry.cameras.CameraModel` or pinhole K): the least of its two axes' px per radian."""
+    """:data:`~simtest.decisions.GLINT_FIELD_DEG` in px at the principal point of ``camera``.
+
+    Parameters
+    ----------
+    camera : CameraModel or ndarray of shape (3, 3)
+        A camera model (:mod:`simtest.geometry.cameras`) or pinhole intrinsics K.
+
+    Returns
+    -------
+    float
+        The angle (rad) times the lesser of the two image axes' px per radian at the principal point: exact
+        for an equidistant lens, the least over a pinhole's field.
+    """
     if isinstance(camera, np.ndarray):
         return float(min(camera[0, 0], camera[1, 1])) * math.radians(GLINT_FIELD_DEG)
     rad_per_px = np.linalg.norm(camera.pixel_to_ray_jacobian(camera.principal_point[None])[0], axis=0)
