@@ -590,10 +590,10 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
         inside[f] = px.ellipse_level(SimpleNamespace(center=(cu, cv), semi_axes=(a, b), angle_rad=ang),
                                    bps[f, 0], bps[f, 1]) <= 1.0
         reach[f] = np.where(ok[f], _reach_axes(t[f]) * a + OWN_RADIUS_PX, np.nan)
-    one_place = camera is not None and not (lights is not None and lights.has_separate_lights)
-    near = np.maximum(reach, glint_field_px(camera)) if one_place else reach  # (a glint field's, NaN kept)
+    separate = lights is not None and lights.has_separate_lights
+    near = reach if camera is None or separate else np.maximum(reach, glint_field_px(camera))  # glint fields (NaN kept)
     expected = None
-    if lights is not None and camera is not None and lights.has_separate_lights:
+    if separate and camera is not None:
         # out to the reach plus the own lobe's radius at OWN_REL
         expected = other_guide_curves(camera, lights.positions, bps,
                                       np.nan_to_num(reach + np.sqrt(_own_level(t)) * major, nan=-1.0))
