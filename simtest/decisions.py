@@ -621,8 +621,8 @@ ISOCURVE_ISOVALUES = decision(
     n="16 off-axis planes, epsilon/d 0.07 to 0.27")
 SIGMA_MARGIN = decision(
     "SIGMA_MARGIN", 2.0, "sigmas",
-    "A normal whose depth is not observable is kept when this many of its sigmas are below the "
-    "BP ray's expected error (for a Gaussian error, 98 % one-sided that it is the better).",
+    "A light-aware normal (with its depth or without) is recommended when this many of its stated sigmas are "
+    "below the BP ray's expected error (for a Gaussian error, 98 % one-sided that it is the better).",
     basis="physics", stage=_R)
 FUSED_SEPARATION_MAX = decision(
     "FUSED_SEPARATION_MAX", 2.0, "lobe sigmas (the lobe's Gaussian sigma, px)",

@@ -323,6 +323,27 @@ def test_a_misfitting_plane_is_kept_where_the_quadric_confirms_it(gap, s_q, bp_e
         assert rec.normal_from == "bp_ray"
 
 
+@settings(max_examples=60, deadline=None)
+@given(sigma=st.floats(0.01, 40.0), bp_err=st.floats(0.5, 30.0), off=st.floats(0.0, 2.0))
+def test_an_ok_fit_is_recommended_only_where_its_sigma_beats_the_bp_ray(sigma, bp_err, off):
+    # Rule 1: an ok fit is recommended with its depth where SIGMA_MARGIN of its stated sigmas lie below the BP
+    # ray's expected error, else the BP ray (a plane fit whose normal misses the law of reflection at the BP by
+    # degrees states that miss in its sigma: the independent sensor-like probe's fit 18 deg off, sigma 20, against
+    # a BP ray 12 deg off). The normal is put `off` deg from the BP ray, below 2 x bp_err: that term does not decide
+    est, pho = _rule4_base()
+    assume(abs(SIGMA_MARGIN * sigma - bp_err) > 1e-5)
+    ok = dataclasses.replace(pho, normal=_tilted(est.bp_ray, off), normal_sigma_deg=sigma, bp_ray_error_deg=bp_err)
+    rec = recommend(dataclasses.replace(est, light_aware={"photometric_fit": ok}))
+    if SIGMA_MARGIN * sigma < bp_err:
+        assert rec.normal_from == "photometric_fit" and rec.depth_mm == ok.depth_mm
+    else:
+        assert rec.normal_from == "bp_ray" and rec.depth_mm is None
+    # a fit that states no sigma (or no BP ray error) is recommended as before
+    for loose in (dataclasses.replace(ok, normal_sigma_deg=None), dataclasses.replace(ok, bp_ray_error_deg=None)):
+        assert recommend(dataclasses.replace(est, light_aware={"photometric_fit": loose})).normal_from \
+            == "photometric_fit"
+
+
 def test_a_quadric_without_a_stated_sigma_confirms_nothing():
     # the patch fits state 180 deg where their covariance is singular: no confirmation
     est, pho = _rule4_base()

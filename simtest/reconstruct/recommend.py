@@ -14,8 +14,9 @@ behind each rule are in ``docs/decisions/light-aware-recommendation.md``.
    (:func:`~simtest.reconstruct.rig_pairs.pair_plane`).
 1. With a rig whose lights are not all at the camera centre, the first ``ok`` fit of
    ``photometric_fit``, ``cubic_patch_fit`` (two lights at different places), ``quadric_fit``,
-   ``isocurve_fit`` (unless the plane misfits); else rules 3 to 5; else ``bp_ray`` (off the camera
-   the BP ray and cone axes give the BP's direction, not the normal).
+   ``isocurve_fit`` (unless the plane misfits) whose stated sigma beats the BP ray
+   (:func:`_beats_bp_ray`); else rules 3 to 5; else ``bp_ray`` (off the camera the BP ray and cone
+   axes give the BP's direction, not the normal).
 2. Without a rig or with every light at the camera centre: ``joint_cone_axis`` (two isophotes),
    else ``cone_axis``, else ``bp_ray``.
 3. The fit of least stated sigma (:func:`_stated_sigma`) whose depth is not observable (misfit
@@ -233,6 +234,15 @@ def _confirmed_plane(est, pho: LightAwareEstimate | None, quad: LightAwareEstima
     return sigma if gap <= s_q and SIGMA_MARGIN * sigma < _bp_ray_error_beside(est, pho) else None
 
 
+def _beats_bp_ray(est, r: LightAwareEstimate) -> bool:
+    """Whether an ``ok`` fit's stated sigma is small enough to be recommended over the BP ray (rule 1): below
+    :data:`SIGMA_MARGIN` times the BP ray's expected error where the fit states both (a fit whose normal misses the
+    law of reflection at the BP by degrees states that miss in its sigma, :func:`~simtest.reconstruct.rig_centroid.
+    light_aware_with_rig`); any ok fit where it states neither."""
+    sigma = _stated_sigma(r)
+    return sigma is None or r.bp_ray_error_deg is None or SIGMA_MARGIN * sigma < _bp_ray_error_beside(est, r)
+
+
 def _bp_ray_error_beside(est, r: LightAwareEstimate) -> float:
     """The BP ray's error, degrees, that rules 3 and 4 compare with: ``r.bp_ray_error_deg`` (0 where not
     set), at least half the angle between the BP ray and the fit's normal.
@@ -274,7 +284,7 @@ def recommend(est) -> Recommendation:
                 continue
             if name == "cubic_patch_fit" and (r.light_normals is None or len(r.light_normals) < 2):
                 continue  # one light, or its depth not observable: its shape trades with the depth
-            if r.status == "ok":
+            if r.status == "ok" and _beats_bp_ray(est, r):
                 return Recommendation(np.asarray(r.normal), name, r.depth_mm, _stated_sigma(r),
                                       r.light_normals, r.light_depths_mm)
             candidates.append((name, r))
