@@ -172,3 +172,38 @@ def test_a_region_holding_another_accepted_highlights_bp_is_two_lobes_not_one():
     rejected = dataclasses.replace(other, status="cluster")
     out = rig_centroid(img, [est, rejected], K, SYMMETRIC)
     assert out[0].light_aware["rig_centroid"].status == "depth_not_observable"
+
+
+def _weak_rows(other_bp_off_px: float, isophote_radius_px: float | None):
+    """A weak row whose plane fit puts guide 0's specular point on its BP, and another row whose BP lies
+    ``other_bp_off_px`` px beside the fit's guide 1 point, with a closed primary isophote (a circle of
+    ``isophote_radius_px`` about its BP) or none."""
+    from types import SimpleNamespace
+
+    from simtest.reconstruct.rig_lobes import guide_specular_points
+    rig = LightRig((Light((-3.0, 0.0, 0.0), 400.0, "inverse_square", 1.0),
+                    Light((3.0, 0.0, 0.0), 400.0, "inverse_square", 1.0)))
+    normal, distance = _unit([0.1, 0.2, -1.0]), 20.0
+    pts = guide_specular_points(K, rig, normal, distance)
+    fit = SimpleNamespace(ok=True, normal=normal, distance_mm=distance)
+    weak = SimpleNamespace(bp_px=tuple(pts[0]), light_aware={"photometric_fit": fit}, primary=None)
+    bp = pts[1] + (other_bp_off_px, 0.0)
+    ring = None if isophote_radius_px is None else SimpleNamespace(closed=True, points_uv=bp + isophote_radius_px * np.c_[
+        np.cos(np.linspace(0, 2 * np.pi, 40, endpoint=False)), np.sin(np.linspace(0, 2 * np.pi, 40, endpoint=False))])
+    other = SimpleNamespace(bp_px=tuple(bp), light_aware=None, primary=ring)
+    return [weak, other], rig
+
+
+@pytest.mark.parametrize("off, radius, confirmed", [
+    (1.0, None, True),   # the other BP within PAIR_TOL_PX (2 px) of the fit's guide 1 point
+    (4.0, None, False),  # 4 px away, no isophote: not on that highlight
+    (4.0, 6.0, True),    # 4 px away but inside its isophote: a broad lobe's BP climbed the diffuse slope
+    (4.0, 3.0, False),   # outside its isophote too
+])
+def test_a_weak_twin_is_confirmed_where_its_fit_puts_the_other_guide_on_the_other_highlight(off, radius, confirmed):
+    # The independent sensor-like probe's frame 16: the weak lobe's plane fit 0.06 deg off, the other guide's point
+    # predicted 2.5 px from that highlight's BP (which the diffuse slope had moved) and inside its isophote
+    from simtest.reconstruct.rig_centroid import _twin_confirmed
+    rows, rig = _weak_rows(off, radius)
+    bps = np.array([r.bp_px for r in rows])
+    assert _twin_confirmed(rows, 0, bps, np.full(2, 2.0), K, rig) is confirmed

@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 
 from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, PAIR_DEPTH_MAX_MM,
@@ -220,7 +221,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
         bps = np.array([e.bp_px for e in out], np.float64)
         reach = PAIR_TOL_PX + np.array([estimate_wander_px(e) for e in out])
         for k in weak:
-            yes = _twin_confirmed(out[k], k, bps, reach, camera, rig)
+            yes = _twin_confirmed(out, k, bps, reach, camera, rig)
             why = ("which its plane fit confirms" if yes else "which its plane fit does not confirm (no plane with its "
                    "depth puts a guide's highlight on its BP and another's on another highlight)")
             out[k] = dataclasses.replace(out[k], status="ok" if yes else "not_specular",
@@ -228,16 +229,22 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     return out
 
 
-def _twin_confirmed(est, k: int, bps: np.ndarray, reach: np.ndarray, camera, rig) -> bool:
-    """Whether the plane fit of ``est`` (row ``k`` of the BPs ``bps``), ok with its distance, puts one guide's
-    specular point within ``reach`` of its own BP and another guide's within ``reach`` of another row's BP
-    (``reach``: :data:`~simtest.decisions.PAIR_TOL_PX` plus each BP's wander). The twin that let a weak peak
-    pass is a claim on the rig's geometry, which only such a fit checks (a bump on a lobe's broad shoulder, or a
-    pale spot of texture, can have a twin too)."""
-    fit = (est.light_aware or {}).get("photometric_fit")
+def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, camera, rig) -> bool:
+    """Whether the plane fit of ``rows[k]`` (its BP row ``k`` of ``bps``), ok with its distance, puts one guide's
+    specular point within ``reach`` of its own BP and another guide's on another row: within ``reach`` of its BP
+    or inside its closed primary isophote (``reach``: :data:`~simtest.decisions.PAIR_TOL_PX` plus each BP's
+    wander). The twin that let a weak peak pass is a claim on the rig's geometry, which only such a fit checks (a
+    bump on a lobe's broad shoulder, or a pale spot of texture, can have a twin too). Inside the isophote counts:
+    a broad lobe's BP climbs the diffuse slope away from its specular point by more than its isophote does."""
+    fit = (rows[k].light_aware or {}).get("photometric_fit")
     if not (fit is not None and fit.ok and fit.distance_mm is not None):
         return False
-    near = np.linalg.norm(guide_specular_points(camera, rig, fit.normal, fit.distance_mm)[:, None] - bps[None],
-                          axis=-1) <= reach[None]  # (guides, rows)
+    points = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+    near = np.linalg.norm(points[:, None] - bps[None], axis=-1) <= reach[None]  # (guides, rows)
+    for r, e in enumerate(rows):
+        p = getattr(e, "primary", None)
+        if r != k and p is not None and p.closed and p.points_uv is not None and len(p.points_uv) >= 3:
+            poly = np.asarray(p.points_uv, np.float32).reshape(-1, 1, 2)
+            near[:, r] |= [cv2.pointPolygonTest(poly, (float(u), float(v)), False) >= 0 for u, v in points]
     own, other = near[:, k], np.delete(near, k, axis=1).any(axis=1)
     return bool((own[:, None] & other[None, :] & ~np.eye(len(own), dtype=bool)).any())
