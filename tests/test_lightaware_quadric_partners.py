@@ -49,7 +49,7 @@ def _case():
     img = img / img.max() * 200.0  # unclipped
     img.setflags(write=False)
     rig = LightRig(tuple(Light(L, 1.0, "none") for L in LIGHTS))
-    return img, rig, reconstruct(img, K, settings=ReconSettings.for_frames())
+    return img, rig, reconstruct(img, K, settings=ReconSettings.for_frames(), lights=rig)  # as the command line
 
 
 @functools.lru_cache(maxsize=None)

@@ -133,6 +133,20 @@ def test_comparable_glints_within_the_glint_fields_angle_are_a_cluster_whatever_
     assert all("other specular peak" not in _at(rigged, u, 100).detail for u in (90, 105))
 
 
+def test_glints_joined_by_a_sheen_above_half_their_height_are_a_field_under_one_light_place():
+    # two white glints (sigma 1.2 px, 140 and 133 levels) 8 px apart on a white sheen (sigma 8 px, 80 levels): the
+    # sheen lifts the saddle between them above half their top-hat height but below the isophote's 0.7 (measured:
+    # ok with a valley at 0.5, cluster at 0.7). Under one light place two lobes of one smooth patch cannot be: a
+    # glint field (GLINT_FIELD_VALLEY_REL); under a rig of separate guides two guides' lobes of one curved patch can
+    # join that high, and the valley stays VALLEY_REL
+    from simtest.geometry.lights import Light, LightRig
+    img = _frame([(100, 100, 8.0, 80, WHITE), (96, 100, 1.2, 140, WHITE), (104, 100, 1.2, 133, WHITE)])
+    one = _at(reconstruct(img, K), 96, 100)
+    assert one.status == "cluster" and "other specular peak" in one.detail, (one.status, one.detail)
+    rig = LightRig(tuple(Light((x, 0.0, 0.0), 1.0, "inverse_square", 0.0) for x in (-4.0, 4.0)))
+    assert "other specular peak" not in _at(reconstruct(img, K, lights=rig), 96, 100).detail
+
+
 @pytest.mark.parametrize("f, status", [(300.0, "cluster"), (150.0, "ok")])
 def test_simtest_reconstruct_reads_the_glint_fields_angle_from_the_users_camera_file(tmp_path, f, status):
     # the command a user types, with a camera file of each focal length: the same frame as above

@@ -42,7 +42,7 @@ import numpy as np
 from simtest.decisions import (PALENESS_MAX, WHITE_CHROMA, WHITE_SHARE_MIN, SIGNIFICANCE_MIN, CONTRAST_MIN,
                                PANEL_STD_REL, PANEL_MIN_AREA, PANEL_FRACTION_MAX, NEIGHBOUR_REL, NEIGHBOUR_AREA_REL,
                                VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX, GLINT_FIELD_DEG, SURROUND_REL,
-                               OWN_REL, SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX,
+                               GLINT_FIELD_VALLEY_REL, OWN_REL, SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX,
                                QUANTISATION_SIGMA_LSB, CONFIDENCE_COEFFICIENTS as COEFFICIENTS)
 from simtest.geometry.response import srgb_inverse
 from simtest.reconstruct import evidence_pixels as px
@@ -314,7 +314,8 @@ def _surely_no_panels(gray: np.ndarray, noise, rr: np.ndarray, full_scale: float
 
 def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois, *, full_scale: float, noise: float,
                    background_px: int, reach_px: np.ndarray | None = None, ellipses=None, windowed: bool | None = None,
-                   grey: bool = False, panels: bool = True, expected=None, response=None) -> Evidence:
+                   grey: bool = False, panels: bool = True, expected=None, response=None,
+                   valley_rel: float = VALLEY_REL) -> Evidence:
     """Measure every candidate of a frame.
 
     Parameters
@@ -349,6 +350,8 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         (:func:`simtest.reconstruct.rig_pairs.other_guide_curves`). None: no rig.
     response : SensorResponse, optional
         The frame's tone curve; None: a display-encoded (sRGB) frame.
+    valley_rel : float
+        A peak joined to the candidate above this fraction of its height (less the noise's dip) is its own.
 
     Returns
     -------
@@ -421,7 +424,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
         ells = None if ellipses is None else [ellipses[k] for k in todo]
         exp_t = None if expected is None else [expected[k] for k in todo]
         neighbours[todo] = px.other_peaks(top, xs, ys, np.asarray(bps_uv, np.float64).reshape(-1, 2)[todo], ij[todo],
-                                          reach[todo], NEIGHBOUR_REL * ht, VALLEY_REL * ht - VALLEY_NOISE * noise,
+                                          reach[todo], NEIGHBOUR_REL * ht, valley_rel * ht - VALLEY_NOISE * noise,
                                           ells, NEIGHBOUR_AREA_REL, exp_t, PAIR_TOL_PX)
     # the significance's noise: the sensor's at the background's level, and JPEG's quantisation
     # error where the frame carries a block grid; an integer image's at least the rounding's
@@ -591,7 +594,8 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
                                    bps[f, 0], bps[f, 1]) <= 1.0
         reach[f] = np.where(ok[f], _reach_axes(t[f]) * a + OWN_RADIUS_PX, np.nan)
     separate = lights is not None and lights.has_separate_lights
-    near = reach if camera is None or separate else np.maximum(reach, glint_field_px(camera))  # glint fields (NaN kept)
+    glints = camera is not None and not separate  # one light place: glint fields (NaN kept)
+    near = np.maximum(reach, glint_field_px(camera)) if glints else reach
     expected = None
     if separate and camera is not None:
         # out to the reach plus the own lobe's radius at OWN_REL
@@ -603,7 +607,7 @@ def assess(image: np.ndarray, gray: np.ndarray, ests, *, full_scale: float, wind
                         noise=noise_sigma(gray) if noise is None else float(noise),
                         background_px=background_px or background_side_px(gray.shape),
                         reach_px=near, ellipses=ells, windowed=windowed, grey=grey, expected=expected,
-                        panels=ok, response=response)
+                        panels=ok, response=response, valley_rel=GLINT_FIELD_VALLEY_REL if glints else VALLEY_REL)
     clipped = np.array([bool(e.saturated) for e in ests], dtype=bool)
     # the surround, for the candidates that pass every check before it; the others' share counts as 1
     surround = np.where(np.isfinite(reach), 1.0, np.nan)
