@@ -329,9 +329,10 @@ def test_an_ok_fit_is_recommended_only_where_its_sigma_beats_the_bp_ray(sigma, b
     # Rule 1: an ok fit is recommended with its depth where SIGMA_MARGIN of its stated sigmas lie below the BP
     # ray's expected error, else the BP ray (a plane fit whose normal misses the law of reflection at the BP by
     # degrees states that miss in its sigma: the independent sensor-like probe's fit 18 deg off, sigma 20, against
-    # a BP ray 12 deg off). The normal is put `off` deg from the BP ray, below 2 x bp_err: that term does not decide
+    # a BP ray 12 deg off). The normal is put `off` deg from the BP ray, below 2 x bp_err (half the angle is the
+    # least BP ray error the rule assumes, _bp_ray_error_beside): that term does not decide
     est, pho = _rule4_base()
-    assume(abs(SIGMA_MARGIN * sigma - bp_err) > 1e-5)
+    assume(abs(SIGMA_MARGIN * sigma - bp_err) > 1e-5 and 0.5 * off < bp_err - 1e-5)
     ok = dataclasses.replace(pho, normal=_tilted(est.bp_ray, off), normal_sigma_deg=sigma, bp_ray_error_deg=bp_err)
     rec = recommend(dataclasses.replace(est, light_aware={"photometric_fit": ok}))
     if SIGMA_MARGIN * sigma < bp_err:
