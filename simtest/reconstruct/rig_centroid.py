@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import cv2
 import numpy as np
 
 from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, PAIR_DEPTH_MAX_MM,
@@ -38,6 +37,7 @@ from simtest.reconstruct.lightaware import LightAwareEstimate, bisector, reflect
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.verify import WEAK_TWIN, specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
+from simtest.reconstruct.isophote import polygon_contains
 from simtest.reconstruct.rig_pairs import estimate_wander_px
 from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, guide_specular_points,
                                            partner_rows, shared_plane_rows, split_fused_lobes, splittable)
@@ -242,9 +242,8 @@ def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, came
     points = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
     near = np.linalg.norm(points[:, None] - bps[None], axis=-1) <= reach[None]  # (guides, rows)
     for r, e in enumerate(rows):
-        p = getattr(e, "primary", None)
+        p = e.primary
         if r != k and p is not None and p.closed and p.points_uv is not None and len(p.points_uv) >= 3:
-            poly = np.asarray(p.points_uv, np.float32).reshape(-1, 1, 2)
-            near[:, r] |= [cv2.pointPolygonTest(poly, (float(u), float(v)), False) >= 0 for u, v in points]
+            near[:, r] |= polygon_contains(np.asarray(p.points_uv, np.float64), points)
     own, other = near[:, k], np.delete(near, k, axis=1).any(axis=1)
     return bool((own[:, None] & other[None, :] & ~np.eye(len(own), dtype=bool)).any())

@@ -14,10 +14,10 @@ A candidate earns ``ok`` when it passes, in order (numbers and their reasons: :m
   (another such peak where the rig puts another guide's highlight, :func:`~simtest.reconstruct.rig_pairs.rig_twins`)
   is exempt from the paleness and contrast bars (:meth:`Evidence.with_twins`); one below the contrast bar is
   ``weak_twin`` until its plane fit confirms the twin (:data:`WEAK_TWIN`);
-- **isolated** (``cluster``): no other specular peak of at least :data:`NEIGHBOUR_REL` of its height
-  beyond :data:`OWN_RADIUS_PX` of the BP (another guide's excepted, :mod:`simtest.reconstruct.rig_pairs`)
-  within its isophotes' reach or, under one light place, :data:`GLINT_FIELD_DEG` of view (a glint field),
-  and at most :data:`SURROUND_FRACTION_MAX` of its surround lit by other light;
+- **isolated** (``cluster``): no other peak of :data:`NEIGHBOUR_REL` of its height beyond :data:`OWN_RADIUS_PX` of the
+  BP (another guide's excepted, :mod:`simtest.reconstruct.rig_pairs`) and a valley below :data:`VALLEY_REL` of it,
+  within its isophotes' reach (one light place: :data:`GLINT_FIELD_DEG` of view, :data:`GLINT_FIELD_VALLEY_REL`:
+  a glint field); and at most :data:`SURROUND_FRACTION_MAX` of its surround lit by other light;
 - **nested ellipses** (``bad_fit``): primary isophote RMS residual at most :data:`RESIDUAL_MAX_REL` of
   its semi-minor axis, BP inside it, semi-minor axis at least :data:`MINOR_AXIS_MIN_PX`.
 
@@ -41,9 +41,9 @@ import numpy as np
 
 from simtest.decisions import (PALENESS_MAX, WHITE_CHROMA, WHITE_SHARE_MIN, SIGNIFICANCE_MIN, CONTRAST_MIN,
                                PANEL_STD_REL, PANEL_MIN_AREA, PANEL_FRACTION_MAX, NEIGHBOUR_REL, NEIGHBOUR_AREA_REL,
-                               VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX, GLINT_FIELD_DEG, SURROUND_REL,
-                               GLINT_FIELD_VALLEY_REL, OWN_REL, SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL, MINOR_AXIS_MIN_PX,
-                               QUANTISATION_SIGMA_LSB, CONFIDENCE_COEFFICIENTS as COEFFICIENTS)
+                               VALLEY_REL, VALLEY_NOISE, NEIGHBOUR_REACH, OWN_RADIUS_PX, GLINT_FIELD_DEG, OWN_REL,
+                               GLINT_FIELD_VALLEY_REL, SURROUND_REL, SURROUND_FRACTION_MAX, RESIDUAL_MAX_REL,
+                               MINOR_AXIS_MIN_PX, QUANTISATION_SIGMA_LSB, CONFIDENCE_COEFFICIENTS as COEFFICIENTS)
 from simtest.geometry.response import srgb_inverse
 from simtest.reconstruct import evidence_pixels as px
 from simtest.reconstruct._pixels import uv_to_rc
