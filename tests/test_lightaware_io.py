@@ -6,6 +6,7 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from simtest.cli import app
@@ -122,6 +123,15 @@ def test_cli_reads_the_rig_from_the_camera_file(tmp_path):
     assert spec["normal_from"] == "photometric_fit"
     assert angle_between_deg(spec["normal"], N) < EXACT.exact_image_normal_deg
     assert abs(spec["depth_mm"] / depth - 1) < EXACT.exact_image_depth_rel
+    # depth_mm is a range along the BP's ray; point_mm is that point, whose z is the z-depth a
+    # depth map (ground_truth.npz) holds: exactly on the estimated BP's ray, at the true point's z
+    # within the depth's tolerance (off the axis the range and the z-depth differ by 1 / cos)
+    P, ray = np.array(spec["point_mm"]), np.linalg.solve(K, [*spec["bp_px"], 1.0])
+    assert np.linalg.norm(P) == pytest.approx(spec["depth_mm"], rel=1e-12)
+    assert np.allclose(P / np.linalg.norm(P), ray / np.linalg.norm(ray), atol=1e-12)
+    true_point = depth * np.linalg.solve(K, [*bp, 1.0]) / np.linalg.norm(np.linalg.solve(K, [*bp, 1.0]))
+    assert abs(P[2] / true_point[2] - 1) < EXACT.exact_image_depth_rel
+    assert true_point[2] < 0.99 * depth  # off the axis: a z-depth read as the range would fail above
 
 
 def test_estimates_json_carries_the_per_light_normals_of_a_two_light_patch(tmp_path):

@@ -13,9 +13,10 @@ included, as ``python -m`` finds modules) or ``path/to/file.py:function`` (the f
 
 It returns N rows (N may be 0): ``"bp_px"`` of shape (N, 2), each highlight's BP (u, v) px;
 ``"normal"`` of shape (N, 3), camera frame, facing the camera (a row of NaN: no answer);
-optional ``"depth_mm"`` and ``"sigma_deg"`` (N,). Each true highlight is matched to the nearest
-returned BP within ``match_px``, else it fails with ``not_detected``; an exception or malformed
-table fails the realisation with ``exception:<type>``.
+optional ``"depth_mm"`` (N,), a range along the BP's ray as in ``estimates.json``, and
+``"sigma_deg"`` (N,). Each true highlight is matched to the nearest returned BP within
+``match_px``, else it fails with ``not_detected``; an exception or malformed table fails the
+realisation with ``exception:<type>``.
 """
 
 from __future__ import annotations

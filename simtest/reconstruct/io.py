@@ -29,6 +29,9 @@ CONVENTIONS = {
     "normals": "unit vectors in the camera frame facing the camera (n . ray < 0)",
     "pixels": "(u, v) = (column, row), pixel centres at integer coordinates",
     "angles": "degrees",
+    "depths": "depth_mm: distance from the camera centre to the surface along the BP's viewing ray, mm (a range, "
+              "not a z-depth); point_mm: that point, camera frame, mm, whose z is the z-depth of ground_truth.npz "
+              "and highlights.json",
 }
 
 _REQUIRED_TOP = ("schema", "simtest_version", "image", "K", "dist_coeffs", "isovalues", "specularities")
@@ -90,6 +93,14 @@ def _nums(a):
                                    for v in np.asarray(a, dtype=np.float64).reshape(-1)]
 
 
+def _point_mm(depth_mm, bp_ray) -> list | None:
+    """The point ``depth_mm`` (a range, mm) along the BP's viewing ray ``-bp_ray``, camera frame, mm;
+    its z is the z-depth a depth map holds. None without a depth."""
+    if depth_mm is None or bp_ray is None:
+        return None
+    return (-float(depth_mm) * np.asarray(bp_ray, dtype=np.float64).ravel()).tolist()
+
+
 def _light_aware_dict(la: dict) -> dict:
     """The ``light_aware`` block of a specularity: each light-aware result's fields, JSON-ready."""
     return {name: {"status": r.status, "detail": r.detail, "depth_mm": _num(r.depth_mm),
@@ -131,6 +142,7 @@ def estimate_to_dict(est, include_points: bool = False) -> dict:
         "normal": _vec(rec.normal),
         "normal_from": rec.normal_from,
         "depth_mm": _num(rec.depth_mm),
+        "point_mm": _point_mm(rec.depth_mm, est.bp_ray),
         "normal_sigma_deg": _num(rec.normal_sigma_deg),
         "light_normals": _rows(getattr(rec, "light_normals", None)),
         "light_depths_mm": _nums(getattr(rec, "light_depths_mm", None)),

@@ -17,7 +17,7 @@ import orjson
 from simtest._lazy import require
 from simtest._version import __version__
 from simtest.reconstruct.io import (LIGHT_AWARE_NORMALS, SCHEMA_VERSION, _light_aware_dict, _not_finite_at, _nums,
-                                    _rows, dumps)
+                                    _point_mm, _rows, dumps)
 
 def arrow():
     """``(pyarrow, pyarrow.parquet)``, imported when a table is first made or read."""
@@ -64,7 +64,7 @@ def table_schema():
                              ("light_normal_sigmas_deg", pa.list_(f64)), ("depth_range_mm", pa.list_(f64))])
     return pa.schema([
         ("frame", pa.int32()), ("source", text), ("candidate", pa.int32()),
-        ("normal", v3), ("normal_from", text), ("depth_mm", f64), ("normal_sigma_deg", f64),
+        ("normal", v3), ("normal_from", text), ("depth_mm", f64), ("point_mm", v3), ("normal_sigma_deg", f64),
         ("light_normals", pa.list_(v3)), ("light_depths_mm", pa.list_(f64)),
         ("bp_px", v2), ("bp_intensity", f64), ("saturated", pa.bool_()), ("roi", pa.list_(pa.int32(), 4)),
         ("status", text), ("detail", text), ("confidence", f64),
@@ -278,6 +278,8 @@ def estimates_batch(frame: int, source: str, ests, include_points: bool = False)
                          f"{where}: normal"),
         "normal_from": pa.array(["bp_ray" if r is None else r.normal_from for r in recs], type=pa.string()),
         "depth_mm": _floats([None if r is None else r.depth_mm for r in recs], f"{where}: depth_mm"),
+        "point_mm": _fixed([None if r is None else _point_mm(r.depth_mm, ray) for r, ray in zip(recs, bp_rays)], (3,),
+                           f"{where}: point_mm"),
         "normal_sigma_deg": _floats([None if r is None else r.normal_sigma_deg for r in recs],
                                     f"{where}: normal_sigma_deg"),
         "light_normals": pa.array([None if r is None else _rows(getattr(r, "light_normals", None)) for r in recs],
