@@ -16,11 +16,12 @@ import numpy as np
 from simtest.decisions import BROAD_ISOPHOTE_REL, BROAD_LOBE_SCALE
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import noise_sigma
-from simtest.reconstruct.detect_pixels import wide_lobe_boxes
+from simtest.reconstruct.detect_pixels import background_side_px, wide_lobe_boxes
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_pass import detected, frame_pass
 from simtest.reconstruct.frame_prep import _Frame
 from simtest.reconstruct.light_fits import _offset_rig
+from simtest.reconstruct.rig_lobes import splittable
 from simtest.reconstruct.verify import bp_checks
 
 __all__ = ["with_broad_lobes"]
@@ -48,9 +49,11 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
     2. of those, the ones whose brightest pixel passes the colour and height checks on the wider
        square (:func:`~simtest.reconstruct.verify.bp_checks`);
     3. the region around each detected again on the wider square, and its accepted candidates in
-       the box through every check. One that comes out ``ok`` (or, under a rig of separate lights,
-       ``merged``: the guides' lobes fused, for the rig's step to split) with a primary isophote at
-       least ``BROAD_ISOPHOTE_REL`` of the first square across replaces the estimates in its box.
+       the box through every check. One that comes out ``ok`` (or, under a rig of separate lights, a
+       status the rig's step splits, :func:`~simtest.reconstruct.rig_lobes.splittable`: the guides' lobes
+       fused, or cut by the frame) with a primary isophote at least ``BROAD_ISOPHOTE_REL`` of the first
+       square across (with no ellipse, a region narrower across than ``BROAD_LOBE_SCALE`` of the frame's
+       own squares: wider is shading) replaces the estimates in its box.
 
     The verdicts decide, so a frame reconstructed without the checks keeps its first pass.
 
@@ -79,6 +82,7 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
     """
     narrow = det.background_px
     side = int(BROAD_LOBE_SCALE * narrow)
+    widest = BROAD_LOBE_SCALE * background_side_px(img.shape[:2])  # (without its clipped plateaus' widening)
     sub = img[r.slices]
     # the first pass's fitted candidates (their colour and height passed): a box holding one is left as it is
     held = np.array([e.bp_px for e in done if e.isophotes], np.float64).reshape(-1, 2) - [r.col0, r.row0]
@@ -109,9 +113,11 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
         got, _, _ = frame_pass(wide_frame, img, region, lights, det=wide, only=pick, again=again)
         for i, e in zip(pick, got):
             seen = any(np.array_equal(e.bp_px, x.bp_px) for x in ests)  # boxes that overlap find it twice
-            if ((e.ok or (e.status == "merged" and rig)) and not seen and e.primary is not None
-                    and e.primary.ellipse is not None
-                    and 2.0 * max(e.primary.ellipse.semi_axes) >= BROAD_ISOPHOTE_REL * narrow):
+            # no ellipse: the region's narrower side, one lobe across the rig's baseline where the guides' fuse
+            ell = None if e.primary is None else e.primary.ellipse
+            broad = (2.0 * max(ell.semi_axes) >= BROAD_ISOPHOTE_REL * narrow if ell is not None
+                     else not e.ok and min(bx[i, 1] - bx[i, 0], bx[i, 3] - bx[i, 2]) < widest)
+            if (e.ok or (rig and splittable(e))) and not seen and e.primary is not None and broad:
                 ests.append(e)
                 cands.append(wide.candidates[i])
                 at.append(bx[i] + [r.row0, r.row0, r.col0, r.col0])
