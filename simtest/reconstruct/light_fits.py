@@ -29,7 +29,8 @@ from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit,
                                             quadric_fit, refine_isophote_points)
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
                                            depth_within_ceiling, with_guide_spread)
-from simtest.reconstruct.rig_pairs import guide_specular_points, pair_misfit_px, pair_partners, pair_starts
+from simtest.reconstruct.rig_pairs import (estimate_wander_px, guide_specular_points, pair_misfit_px, pair_partners,
+                                           pair_starts)
 
 #: The photometric fit's statuses after which the curved-patch fits run by default (the plane is
 #: not the ROI's surface; docs/decisions/light-aware-recommendation.md).
@@ -140,7 +141,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         if refit.ok:
             pf = refit.noted(f"refitted on the lobe's ROI ({lobe_roi.shape[1]} x {lobe_roi.shape[0]} px)")
     # the other guide's highlight seen where the fit's plane puts it: the image tells the guides apart
-    paired = bool(pair_starts) and _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts)
+    wander = estimate_wander_px(est) if pair_starts else 0.0
+    paired = bool(pair_starts) and _fits_the_pair(pf, est.bp_px, camera, rig, pair_starts, wander)
     ran_off = pf.status in _RAN_OFF
     if pair_starts and (pf.ok or pf.status == "depth_not_observable" or ran_off) and not paired:
         # the other guide's highlight, which the ROI's fit did not see: refitted from the pair's depth too,
@@ -148,14 +150,14 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         if not (rig.has_separate_lights and _peaks_in(lobe_partners, big) >= rig.light_places):
             alt = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level,
                                dict(pkw, pair_starts=tuple(pair_starts)))
-            if alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts):
+            if alt.ok and _fits_the_pair(alt, est.bp_px, camera, rig, pair_starts, wander):
                 pf = alt.noted("refitted from the depth its pair with another guide's highlight gives")
             elif not ran_off and (span := _pair_roi(big, est.bp_px, camera, rig, pair_starts, img.shape)) is not None:
                 # one guide's lobe alone leaves which guide lit it to the fit: the swapped guide at another
                 # depth images nearly the same lobe. The other guide's highlight, in the ROI, tells them apart
                 joint = _photometric(img, gray, span, est, camera, rig, response, colour, saturation_level,
                                      dict(pkw, pair_starts=tuple(pair_starts)))
-                if joint.ok and _fits_the_pair(joint, est.bp_px, camera, rig, pair_starts):
+                if joint.ok and _fits_the_pair(joint, est.bp_px, camera, rig, pair_starts, wander):
                     pf = joint.noted(f"refitted on the ROI that holds its pair with another guide's "
                                      f"highlight ({span.shape[1]} x {span.shape[0]} px)")
         # the plane (a depth-less fit's normal: at the pair's depth) off the partner's lobe, farther than a
@@ -262,11 +264,11 @@ def _rise(gray: np.ndarray, uv, ring: float) -> tuple[float, float]:
     return peak - float(np.median(border_ring(gray[Roi.around(uv, ring, gray.shape).slices]))), peak
 
 
-def _fits_the_pair(fit: LightAwareEstimate, bp_uv, camera, rig, starts) -> bool:
-    """Whether a fit with a depth puts the pair's other highlight within ``PAIR_TOL_PX`` of it
-    (:func:`~simtest.reconstruct.rig_pairs.pair_misfit_px`)."""
+def _fits_the_pair(fit: LightAwareEstimate, bp_uv, camera, rig, starts, wander_px: float = 0.0) -> bool:
+    """Whether a fit with a depth puts the pair's other highlight within ``PAIR_TOL_PX`` plus ``wander_px`` of it
+    (:func:`~simtest.reconstruct.rig_pairs.pair_misfit_px`): the BP's wander, the partner's alike (one plane's lobes)."""
     return (fit.has_normal and fit.distance_mm is not None
-            and pair_misfit_px(camera, rig, bp_uv, starts, fit.normal, fit.distance_mm) <= PAIR_TOL_PX)
+            and pair_misfit_px(camera, rig, bp_uv, starts, fit.normal, fit.distance_mm) <= PAIR_TOL_PX + wander_px)
 
 
 def _fit_intensities(img: np.ndarray, response, linear, saturation_level):
