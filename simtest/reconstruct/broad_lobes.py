@@ -113,7 +113,7 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
         got, _, _ = frame_pass(wide_frame, img, region, lights, det=wide, only=pick, again=again)
         for i, e in zip(pick, got):
             seen = any(np.array_equal(e.bp_px, x.bp_px) for x in ests)  # boxes that overlap find it twice
-            # no ellipse: the region's narrower side, one lobe across the rig's baseline where the guides' fuse
+            # no ellipse: the region's narrower side, one lobe across the rig's baseline where two guides' lobes fuse
             ell = None if e.primary is None else e.primary.ellipse
             broad = (2.0 * max(ell.semi_axes) >= BROAD_ISOPHOTE_REL * narrow if ell is not None
                      else not e.ok and min(bx[i, 1] - bx[i, 0], bx[i, 3] - bx[i, 2]) < widest)
