@@ -163,8 +163,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         # the plane (a depth-less fit's normal: at the pair's depth) off the partner's lobe, farther than a
         # BP's wander off its specular point: the lobe's size, its isophote's (both guides' lobes on one
         # plane image alike) or the detection's where none closed
-        ell = getattr(est, "ellipse", None)
-        lobe = float(max(ell.semi_axes)) if ell is not None else _reach(est, 1.0)
+        lobe = lobe_size_px(est)
         gap = (pair_misfit_px(camera, rig, est.bp_px, pair_starts, pf.normal, pf.distance_mm, shape=img.shape,
                               margin_px=lobe) if pf.has_normal else 0)
         paired = pf.has_normal and gap <= lobe
@@ -199,6 +198,12 @@ def _pair_roi(big: Roi, bp_uv, camera, rig, starts, shape) -> Roi | None:
 def _reach(est, scale: float) -> float:
     """``scale`` times half the larger side of ``est``'s ROI, px: the half-size of a ROI grown about its BP."""
     return scale * max(Roi(*(int(v) for v in est.roi)).shape) / 2.0
+
+
+def lobe_size_px(est) -> float:
+    """A highlight's size, px: its primary ellipse's semi-major axis, else half the larger side of its ROI."""
+    ell = getattr(est, "ellipse", None)
+    return float(max(ell.semi_axes)) if ell is not None else _reach(est, 1.0)
 
 
 def _peaks_in(bps, roi: Roi) -> int:

@@ -28,7 +28,10 @@ the candidate's own plane fit puts both points back: a weak lobe whose isophote 
 with no closed isophote to measure its BP's wander (a lobe the frame cuts; a pale one, ``not_specular``; a weak one
 whose core is ``too_small``) is the other guide's where its bright region holds that point, its fit's too. An ok row
 whose recommended quadric (one curved patch fitted to every guide's lobe) puts its own guide's specular point on its BP
-makes the rejected candidate whose BP lies at another guide's point that guide's row, from the same fit.
+makes the rejected candidate whose BP lies at another guide's point that guide's row, from the same fit. Where no ok
+row's lobe holds another guide's point that such a plane fit puts in the frame (detection found no candidate of that
+lobe: a weak one on bright shading), a plane fit of its own on a ROI of the placing row's size about the point makes
+it that guide's row (status ``ok``, BP at its specular point) where it puts both guides' points where the first does.
 
 Shared plane. An ok row left with the BP ray (its own fits misfit: another guide's lobe on its ROI, a lobe the model
 does not hold) is a guide's highlight on the plane of an ok row whose recommended plane fit (ok, with its distance)
@@ -56,9 +59,11 @@ from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FU
                                PEAK_SMOOTH_SIGMA_PX, PEAK_TOP_SHARE, SIGNIFICANCE_MIN, TOP_CORE_SHARE,
                                TOPS_PLACE_SIGMA_PX)
 from simtest.geometry.angles import angle_between_deg
-from simtest.reconstruct._pixels import uv_to_rc
+from simtest.reconstruct._pixels import Roi, uv_to_rc
+from simtest.reconstruct.assemble import SpecularityEstimate
 from simtest.reconstruct.detect_pixels import luma, noise_sigma
-from simtest.reconstruct.light_fits import NOT_FITTED, PLANE_ONLY, _offset_rig, light_aware_estimates
+from simtest.reconstruct.light_fits import (NOT_FITTED, PLANE_ONLY, _in_frame, _offset_rig, _reach, light_aware_estimates,
+                                           lobe_size_px)
 from simtest.reconstruct.lightaware import LightAwareEstimate
 from simtest.reconstruct.recommend import without_guide_spread
 from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wander_px, guide_specular_points,
@@ -624,7 +629,58 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) 
                           f"BP at its specular point, normal from its photometric fit, which puts guide {i + 1}'s back",
                           light_aware=fits)
             bps[c] = q[j]
+    return _with_unseen_partners(image, out, bps, wander, camera, rig, fit_kwargs, gray)
+
+
+def _with_unseen_partners(image, out: list, bps: np.ndarray, wander: np.ndarray, camera, rig, fit_kwargs: dict,
+                          gray) -> list:
+    """``out`` with a row for each guide's highlight that an ok row's plane fit places in the frame where no ok
+    row's lobe holds it (detection found no candidate of it: a weak lobe on bright shading), where a plane fit of its own on a ROI
+    of the placing row's size about that point puts both guides' specular points where the first fit does (its own
+    within :data:`~simtest.decisions.PAIR_TOL_PX` of that point, the placing row's guide within ``PAIR_TOL_PX`` plus
+    that BP's wander). Rows in ``out``'s order, the new ones by their BP's luma among them (brightest first)."""
+    new, ok = [], np.array([e.ok for e in out], bool)
+    size = np.array([lobe_size_px(e) for e in out])
+    for a, est in enumerate(list(out)):
+        if (placed := _placing_plane(est, bps[a], PAIR_TOL_PX + wander[a], camera, rig)) is None:
+            continue
+        _, pts, i = placed
+        for j in np.flatnonzero(_in_frame(pts, np.shape(image)) & (np.arange(len(pts)) != i)):
+            gaps = np.nan_to_num(np.linalg.norm(bps - pts[j], axis=1), nan=np.inf)
+            if ((gaps <= size) & ok).any() or any(np.linalg.norm(e.bp_px - pts[j]) <= PAIR_TOL_PX for e in new):
+                continue  # an ok row holds that lobe already (its BP within the lobe: a broad one's climbs the shading)
+            gray = luma(np.asarray(image)) if gray is None else gray
+            row = _unseen_partner(image, gray, est, pts[j], (i, j), bps[a], PAIR_TOL_PX + wander[a], camera, rig,
+                                  fit_kwargs)
+            if row is not None:
+                new.append(row)
+    for row in new:  # (stable: after the rows as bright)
+        at = next((k for k, e in enumerate(out) if e.bp_intensity < row.bp_intensity), len(out))
+        out.insert(at, row)
     return out
+
+
+def _unseen_partner(image, gray, donor, uv, guides, donor_bp, reach: float, camera, rig, fit_kwargs: dict):
+    """Guide ``j``'s row at ``uv`` (u, v) px, where ``donor``'s plane fit puts it (``guides = (i, j)``, ``i`` the
+    donor's guide, its BP ``donor_bp`` within ``reach``), where a plane fit on a ROI of the donor's size about
+    ``uv`` agrees (:func:`_with_unseen_partners`); None where it does not."""
+    i, j = guides
+    r, c = (int(v) for v in np.rint(uv_to_rc(np.asarray(uv, np.float64))))
+    roi = Roi.around(uv, _reach(donor, 1.0), np.shape(gray))
+    ray = np.asarray(_model(camera).pixel_to_ray(np.asarray(uv, np.float64)[None]), np.float64)[0]
+    cand = SpecularityEstimate(np.asarray(uv, np.float64).copy(), float(gray[r, c]), False, roi, "not_detected",
+                               "no candidate of the lobe's size", -ray, ())
+    with one_thread_each():  # as with_light_aware's fits: the same bits on any number of workers
+        fits = light_aware_estimates(image, cand, camera, rig, **(fit_kwargs | PLANE_ONLY))
+    pf = fits.get("photometric_fit")
+    if not _plane(pf):
+        return None
+    q = guide_specular_points(camera, rig, pf.normal, pf.distance_mm)
+    if not (np.linalg.norm(q[j] - uv) <= PAIR_TOL_PX and np.linalg.norm(q[i] - donor_bp) <= reach):
+        return None
+    return _row(cand, camera, q[j], f"guide {j + 1}'s highlight where guide {i + 1}'s fit puts it",
+                f"BP at its specular point, normal from its photometric fit, which puts guide {i + 1}'s back",
+                light_aware=fits)
 
 
 def shared_plane_rows(estimates, camera, rig) -> list:
