@@ -174,10 +174,11 @@ def test_a_region_holding_another_accepted_highlights_bp_is_two_lobes_not_one():
     assert out[0].light_aware["rig_centroid"].status == "depth_not_observable"
 
 
-def _weak_rows(other_bp_off_px: float, isophote_radius_px: float | None):
-    """A weak row whose plane fit puts guide 0's specular point on its BP, and another row whose BP lies
-    ``other_bp_off_px`` px beside the fit's guide 1 point, with a closed primary isophote (a circle of
-    ``isophote_radius_px`` about its BP) or none."""
+def _weak_rows(other_bp_off_px: float, isophote_radius_px: float | None, own_off_px: float = 0.0,
+               own_radius_px: float | None = None):
+    """A weak row whose BP lies ``own_off_px`` px beside its plane fit's guide 0 specular point, with a closed
+    primary isophote (a circle of ``own_radius_px`` about its BP) or none, and another row whose BP lies
+    ``other_bp_off_px`` px beside the fit's guide 1 point, its isophote of ``isophote_radius_px`` or none."""
     from types import SimpleNamespace
 
     from simtest.reconstruct.rig_lobes import guide_specular_points
@@ -186,11 +187,14 @@ def _weak_rows(other_bp_off_px: float, isophote_radius_px: float | None):
     normal, distance = _unit([0.1, 0.2, -1.0]), 20.0
     pts = guide_specular_points(K, rig, normal, distance)
     fit = SimpleNamespace(ok=True, normal=normal, distance_mm=distance)
-    weak = SimpleNamespace(bp_px=tuple(pts[0]), light_aware={"photometric_fit": fit}, primary=None)
+    def ring(centre, radius):
+        t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+        return None if radius is None else SimpleNamespace(closed=True, points_uv=centre + radius * np.c_[np.cos(t),
+                                                                                                          np.sin(t)])
+    own = pts[0] + (0.0, own_off_px)
+    weak = SimpleNamespace(bp_px=tuple(own), light_aware={"photometric_fit": fit}, primary=ring(own, own_radius_px))
     bp = pts[1] + (other_bp_off_px, 0.0)
-    ring = None if isophote_radius_px is None else SimpleNamespace(closed=True, points_uv=bp + isophote_radius_px * np.c_[
-        np.cos(np.linspace(0, 2 * np.pi, 40, endpoint=False)), np.sin(np.linspace(0, 2 * np.pi, 40, endpoint=False))])
-    other = SimpleNamespace(bp_px=tuple(bp), light_aware=None, primary=ring)
+    other = SimpleNamespace(bp_px=tuple(bp), light_aware=None, primary=ring(bp, isophote_radius_px))
     return [weak, other], rig
 
 
@@ -205,5 +209,19 @@ def test_a_weak_twin_is_confirmed_where_its_fit_puts_the_other_guide_on_the_othe
     # predicted 2.5 px from that highlight's BP (which the diffuse slope had moved) and inside its isophote
     from simtest.reconstruct.rig_centroid import _twin_confirmed
     rows, rig = _weak_rows(off, radius)
+    bps = np.array([r.bp_px for r in rows])
+    assert _twin_confirmed(rows, 0, bps, np.full(2, 2.0), K, rig) is confirmed
+
+
+@pytest.mark.parametrize("own_off, own_radius, confirmed", [
+    (4.0, None, False),  # its own BP 4 px off its guide's point, beyond PAIR_TOL_PX, no isophote
+    (4.0, 6.0, True),    # inside its own isophote: its BP climbed the diffuse slope as a partner's does
+    (4.0, 3.0, False),   # outside it
+])
+def test_a_weak_twins_own_point_may_lie_inside_its_own_isophote(own_off, own_radius, confirmed):
+    # The independent sensor-like probe's frame 43 (seed 780): the weak lobe's plane fit 0.05 deg off puts its own
+    # guide's point 4.5 px from its BP, 0.1 px beyond PAIR_TOL_PX plus its wander, inside its isophote
+    from simtest.reconstruct.rig_centroid import _twin_confirmed
+    rows, rig = _weak_rows(1.0, None, own_off, own_radius)
     bps = np.array([r.bp_px for r in rows])
     assert _twin_confirmed(rows, 0, bps, np.full(2, 2.0), K, rig) is confirmed

@@ -231,11 +231,11 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
 
 def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, camera, rig) -> bool:
     """Whether the plane fit of ``rows[k]`` (its BP row ``k`` of ``bps``), ok with its distance, puts one guide's
-    specular point within ``reach`` of its own BP and another guide's on another row: within ``reach`` of its BP
-    or inside its closed primary isophote (``reach``: :data:`~simtest.decisions.PAIR_TOL_PX` plus each BP's
-    wander). The twin that let a weak peak pass is a claim on the rig's geometry, which only such a fit checks (a
-    bump on a lobe's broad shoulder, or a pale spot of texture, can have a twin too). Inside the isophote counts:
-    a broad lobe's BP climbs the diffuse slope away from its specular point by more than its isophote does."""
+    specular point on its own row and another guide's on another row: within ``reach`` of the row's BP or inside
+    its closed primary isophote (``reach``: :data:`~simtest.decisions.PAIR_TOL_PX` plus each BP's wander). The
+    twin that let a weak peak pass is a claim on the rig's geometry, which only such a fit checks (a bump on a
+    lobe's broad shoulder, or a pale spot of texture, can have a twin too). Inside the isophote counts, the row's
+    own too: a broad lobe's BP climbs the diffuse slope away from its specular point by more than its isophote does."""
     fit = (rows[k].light_aware or {}).get("photometric_fit")
     if not (fit is not None and fit.ok and fit.distance_mm is not None):
         return False
@@ -243,7 +243,7 @@ def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, came
     near = np.linalg.norm(points[:, None] - bps[None], axis=-1) <= reach[None]  # (guides, rows)
     for r, e in enumerate(rows):
         p = e.primary
-        if r != k and p is not None and p.closed and p.points_uv is not None and len(p.points_uv) >= 3:
+        if p is not None and p.closed and p.points_uv is not None and len(p.points_uv) >= 3:
             near[:, r] |= polygon_contains(np.asarray(p.points_uv, np.float64), points)
     own, other = near[:, k], np.delete(near, k, axis=1).any(axis=1)
     return bool((own[:, None] & other[None, :] & ~np.eye(len(own), dtype=bool)).any())
