@@ -221,3 +221,30 @@ def test_pair_partners_is_where_the_pairs_plane_puts_the_other_guides_specular_p
     # the pair's depth is sampled and interpolated: within a hundredth of a pixel of the exact point
     assert np.linalg.norm(pair_partners(K, rig, pts[0], starts)[0] - pts[1]) < 0.05
     assert pair_misfit_px(K, rig, pts[0], starts, n, h) < 0.05
+
+
+@settings(max_examples=25, deadline=None)
+@given(tilt=st.floats(0.0, 35.0), az=st.floats(0.0, 360.0), h=st.floats(8.0, 40.0), w=st.floats(0.5, 2.0))
+def test_a_partner_off_the_curve_by_less_than_the_bps_wander_gives_the_pairs_start(tilt, az, h, w):
+    # Each BP may lie its wander beyond PAIR_TOL_PX from its specular point (a broad lobe's brightest pixel on a
+    # flat top or a slope), as rig_twins pairs them; the pair's start is found within the same reach. A partner
+    # moved across the curve by PAIR_TOL_PX plus half the wander: no start within PAIR_TOL_PX alone, the pair's
+    # guides and depth (within 5 %: the curve's nearest point to the moved partner lies beside the true one)
+    # within PAIR_TOL_PX plus the two BPs' wander
+    from simtest.decisions import PAIR_TOL_PX
+    K = np.array([[300.0, 0, 200.0], [0, 300.0, 150.0], [0, 0, 1]])
+    rig = LightRig(tuple(Light(position_mm=tuple(L)) for L in GUIDES_MM))
+    t, a = np.radians(tilt), np.radians(az)
+    n = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])
+    pts = _plane_points(K, rig, n, h)
+    (exact,) = pair_starts(K, rig.positions, pts[:1], pts)
+    assume(exact and exact[0][:2] == (0, 1))
+    # the curve's direction at the partner: guide 1's point with the BP held as guide 0's, the depth 1 % on
+    d = exact[0][2]
+    tangent = np.subtract(*pair_partners(K, rig, pts[0], ((0, 1, d * 1.01), (0, 1, d))))
+    across = np.array([-tangent[1], tangent[0]]) / np.linalg.norm(tangent)
+    moved = np.array([pts[0], pts[1] + (PAIR_TOL_PX + 0.5 * w) * across])
+    assert pair_starts(K, rig.positions, moved[:1], moved) == [()]
+    (starts,) = pair_starts(K, rig.positions, moved[:1], moved, [w / 2], [0.0, w / 2])
+    assert starts and starts[0][:2] == (0, 1)
+    assert abs(starts[0][2] / exact[0][2] - 1.0) < 0.05

@@ -589,6 +589,7 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     jobs = {i: {} for i in todo} | {i: PLANE_ONLY for i in plane_only if i not in todo}
     todo = sorted(jobs)
     partners = np.array([out[i].bp_px for i in todo], np.float64).reshape(-1, 2)  # of the pair starts, fields or not
+    wander = dict(zip(todo, [estimate_wander_px(out[i]) for i in todo]))  # (and the BPs' wander, px)
     if rig.has_separate_lights:
         roi_scale = kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE)
         _add_lobe_partners(out, todo, jobs, roi_scale)
@@ -599,7 +600,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
                 "photometric_fit", "glint_field", why, None)})
             todo.remove(i)
     # further starts: where the rig puts another guide's highlight on another fitted highlight
-    for i, starts in zip(todo, pair_starts(camera, rig.positions, [out[i].bp_px for i in todo], partners)):
+    for i, starts in zip(todo, pair_starts(camera, rig.positions, [out[i].bp_px for i in todo], partners,
+                                           [wander[i] for i in todo], list(wander.values()))):
         if starts:
             jobs[i] = dict(jobs[i], pair_starts=starts)
     # the others get no fits ({}): under a rig off the camera centre rule 1 recommends the BP ray

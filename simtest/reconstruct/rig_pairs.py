@@ -230,7 +230,8 @@ def _centroid_offset(bp_uv, polygon_uv) -> np.ndarray:
     return np.array([m["m10"] / m["m00"] - float(bp_uv[0]), m["m01"] / m["m00"] - float(bp_uv[1])])
 
 
-def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[int, int, float], ...]]:
+def pair_starts(camera, positions_mm, bps_uv, partners_uv, wander_px=None,
+                partner_wander_px=None) -> list[tuple[tuple[int, int, float], ...]]:
     """The guides and depths at which the BP as one guide's specular point puts another's on a partner.
 
     On a plane the pair's separation fixes the depth, as a stereo baseline would: a start of the
@@ -246,22 +247,31 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
         The candidates' BPs (u, v), px.
     partners_uv : array_like of shape (P, 2)
         The BPs of the highlights that may be another guide's, px.
+    wander_px : array_like of shape (N,), optional
+        Each candidate's BP wander from its lobe's centre (:func:`estimate_wander_px`), px; default 0.
+    partner_wander_px : array_like of shape (P,), optional
+        Each partner's, px; default 0.
 
     Returns
     -------
     list of tuple of (int, int, float)
         Per candidate, sorted (i, j, d): the BP as guide i's specular point at depth d (mm, within
-        :data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM`) puts guide j's within :data:`PAIR_TOL_PX` of a
-        partner; empty where no partner, or more than one, lies on a curve.
+        :data:`DEPTH_MIN_MM` to :data:`DEPTH_MAX_MM`) puts guide j's within :data:`PAIR_TOL_PX` plus both
+        BPs' wander of a partner (as :func:`rig_twins` pairs them); empty where no partner, or more than one,
+        lies on a curve.
     """
     camera = _model(camera)
     L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     partners = np.asarray(partners_uv, np.float64).reshape(-1, 2)
+    wander = np.zeros(len(bps)) if wander_px is None else np.asarray(wander_px, np.float64).reshape(-1)
+    p_wander = np.zeros(len(partners)) if partner_wander_px is None else np.asarray(partner_wander_px,
+                                                                                    np.float64).reshape(-1)
     out: list = []
     rays = camera.pixel_to_ray(bps) if len(bps) else np.zeros((0, 3))
-    for ray, bp in zip(rays, bps):
-        near = partners[np.linalg.norm(partners - bp, axis=1) > PAIR_TOL_PX]
+    for ray, bp, w in zip(rays, bps, wander):
+        keep = np.linalg.norm(partners - bp, axis=1) > PAIR_TOL_PX
+        near, tol = partners[keep], PAIR_TOL_PX + w + p_wander[keep]
         found: dict[int, set[tuple[int, int, float]]] = {}  # partner -> (i, j, depth)
         for i, j, uv in _imaged_curves(camera, L, ray, _DEPTHS) if len(near) and np.isfinite(ray).all() else ():
             # each partner's nearest point on the polyline's segments (consecutive admissible
@@ -273,7 +283,7 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
                 continue
             # (a partner beyond the tolerance of the curve's bounding box is beyond it of the curve)
             ends = np.concatenate([a, a + ab])
-            box = np.all(np.abs(near - (ends.min(0) + ends.max(0)) / 2) <= np.ptp(ends, 0) / 2 + PAIR_TOL_PX, axis=1)
+            box = np.all(np.abs(near - (ends.min(0) + ends.max(0)) / 2) <= np.ptp(ends, 0) / 2 + tol[:, None], axis=1)
             if not box.any():
                 continue
             ap = near[box][None] - a[:, None]  # (segments, partners in the box, 2)
@@ -281,7 +291,7 @@ def pair_starts(camera, positions_mm, bps_uv, partners_uv) -> list[tuple[tuple[i
             dist = np.linalg.norm(ap - t[..., None] * ab[:, None], axis=-1)
             best = dist.argmin(axis=0)
             cols = np.arange(int(np.count_nonzero(box)))
-            hit = dist[best, cols] <= PAIR_TOL_PX
+            hit = dist[best, cols] <= tol[box]
             tb = t[best, cols]
             for c, d in zip(np.flatnonzero(box)[hit], (d0[best] ** (1.0 - tb) * d1[best] ** tb)[hit]):
                 found.setdefault(int(c), set()).add((i, j, float(d)))
