@@ -59,3 +59,17 @@ def test_weak_twins_whose_bps_wandered_off_the_rigs_curve_get_the_pairs_start(tm
         # 0.2 deg: four times either fit's error here; the BP ray is 11 to 12 deg off
         assert angle_between_deg(s["normal"], h["normal"]) < 0.2
 
+
+def test_a_weak_twin_whose_own_fit_misfits_is_confirmed_by_its_twins_plane(tmp_path):
+    # The probe's seed 802 frame 14 (a crop): a plane 7.5 mm away, two weak Blinn lobes 160 px apart. One lobe's pair
+    # fit places both and is 0.2 deg off; the other's own pair fit finds the undeclared vignetting's curved residual
+    # (plane_misfit) and gets that plane as rig_pair (0.2 deg off), then stayed not_specular: only its own fit
+    # could confirm its twin. One plane places both, whichever lobe it was fitted on
+    truth, rows = _rows_at_truth(tmp_path, "probe802_014")
+    assert sorted(s["normal_from"] for s in rows) == ["photometric_fit", "rig_pair"]
+    for h, s in zip(truth, rows):
+        assert s["status"] == "ok", s["detail"]
+        # 0.3 deg: 1.5 times the fit's error here (0.2 deg); the BP ray is 11.6 to 12.3 deg off
+        assert angle_between_deg(s["normal"], h["normal"]) < 0.3
+    assert any("the plane that places both confirms (rig_pair)" in s["detail"] for s in rows)
+

@@ -222,28 +222,34 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
         reach = PAIR_TOL_PX + np.array([estimate_wander_px(e) for e in out])
         for k in weak:
             yes = _twin_confirmed(out, k, bps, reach, camera, rig)
-            why = ("which its plane fit confirms" if yes else "which its plane fit does not confirm (no plane with its "
-                   "depth puts a guide's highlight on its BP and another's on another highlight)")
+            why = ("which its plane fit confirms" if yes == "photometric_fit" else
+                   "which the plane that places both confirms (rig_pair)" if yes else
+                   "which its plane fit does not confirm (no plane with its depth puts a guide's highlight on its BP "
+                   "and another's on another highlight)")
             out[k] = dataclasses.replace(out[k], status="ok" if yes else "not_specular",
                                          detail=f"{out[k].detail}, {why}")
     return out
 
 
-def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, camera, rig) -> bool:
-    """Whether the plane fit of ``rows[k]`` (its BP row ``k`` of ``bps``), ok with its distance, puts one guide's
+def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, camera, rig) -> str:
+    """The name of the fit that confirms, "" where none does: whether the plane fit of ``rows[k]`` (its BP row ``k`` of ``bps``), ok with its distance, puts one guide's
     specular point on its own row and another guide's on another row: within ``reach`` of the row's BP or inside
     its closed primary isophote (``reach``: :data:`~simtest.decisions.PAIR_TOL_PX` plus each BP's wander). The
     twin that let a weak peak pass is a claim on the rig's geometry, which only such a fit checks (a bump on a
     lobe's broad shoulder, or a pale spot of texture, can have a twin too). Inside the isophote counts, the row's
-    own too: a broad lobe's BP climbs the diffuse slope away from its specular point by more than its isophote does."""
-    fit = (rows[k].light_aware or {}).get("photometric_fit")
-    if not (fit is not None and fit.ok and fit.distance_mm is not None):
-        return False
-    points = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
-    near = np.linalg.norm(points[:, None] - bps[None], axis=-1) <= reach[None]  # (guides, rows)
-    for r, e in enumerate(rows):
-        p = e.primary
-        if p is not None and p.closed and p.points_uv is not None and len(p.points_uv) >= 3:
-            near[:, r] |= polygon_contains(np.asarray(p.points_uv, np.float64), points)
-    own, other = near[:, k], np.delete(near, k, axis=1).any(axis=1)
-    return bool((own[:, None] & other[None, :] & ~np.eye(len(own), dtype=bool)).any())
+    own too: a broad lobe's BP climbs the diffuse slope away from its specular point by more than its isophote does.
+    The plane may be the row's own fit's or its ``rig_pair``'s, another row's fit that places both
+    (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`): one plane, whichever lobe it was fitted on."""
+    fits = [f for name in ("photometric_fit", "rig_pair") if (f := (rows[k].light_aware or {}).get(name)) is not None
+            and f.ok and f.distance_mm is not None]
+    for fit in fits:
+        points = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+        near = np.linalg.norm(points[:, None] - bps[None], axis=-1) <= reach[None]  # (guides, rows)
+        for r, e in enumerate(rows):
+            p = e.primary
+            if p is not None and p.closed and p.points_uv is not None and len(p.points_uv) >= 3:
+                near[:, r] |= polygon_contains(np.asarray(p.points_uv, np.float64), points)
+        own, other = near[:, k], np.delete(near, k, axis=1).any(axis=1)
+        if (own[:, None] & other[None, :] & ~np.eye(len(own), dtype=bool)).any():
+            return fit.estimator
+    return ""
