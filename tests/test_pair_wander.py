@@ -73,3 +73,26 @@ def test_a_weak_twin_whose_own_fit_misfits_is_confirmed_by_its_twins_plane(tmp_p
         assert angle_between_deg(s["normal"], h["normal"]) < 0.3
     assert any("the plane that places both confirms (rig_pair)" in s["detail"] for s in rows)
 
+
+def test_two_near_lobes_whose_plateaus_join_within_the_jpeg_margin_get_the_pairs_rows(tmp_path):
+    # The probe's seed 801 frame 37: a plane 8.3 mm away, two GGX lobes clipped over discs 110 to 120 px across, 160
+    # px apart. Their tails sum to within CLIP_LUMA_MARGIN_REL of the clip between the discs: at the margin one top,
+    # the whole frame one merged region whose plane fit runs off; before, guide 2's row `merged` (BP ray 10 deg off)
+    # and guide 1 none. At the clip the two discs part, the margin's top narrows between them, and the rig pairs
+    # their centroids: both rig_pair rows, 0.18 deg off
+    truth, rows = _rows_at_truth(tmp_path, "probe801_037")
+    for h, s in zip(truth, rows):
+        assert s["status"] == "ok" and s["normal_from"] == "rig_pair", s["detail"]
+        # 0.3 deg: the pair's centroids 0.7 and 2.2 px off the specular points (TOPS_PLACE_SIGMA_PX), 160 px apart
+        assert angle_between_deg(s["normal"], h["normal"]) < 0.3
+
+
+def test_one_clipped_top_that_jpeg_broke_at_the_clip_is_not_split_into_the_guides(tmp_path):
+    # The same probe's frame 24 (JPEG, 9.7 mm): each guide's clipped top is one at the margin, and at the clip one
+    # of them breaks into pieces 12 px apart that the rig's curves pair at some depth. Without the waist between
+    # them that pair took guide 1's row 8.5 px off its point, 8.8 deg off; each guide keeps its plane fit
+    truth, rows = _rows_at_truth(tmp_path, "probe801_024")
+    for h, s in zip(truth, rows):
+        assert s["status"] == "ok" and s["normal_from"] == "photometric_fit", s["detail"]
+        # 0.1 deg: five times either fit's error here (0.011 and 0.021 deg)
+        assert angle_between_deg(s["normal"], h["normal"]) < 0.1

@@ -220,6 +220,9 @@ def test_two_guides_specular_points_give_their_plane(tilt, az, h, f, first, push
     (pts,) = other_guide_curves(cam, GUIDES_MM, uv[:1], [float(np.linalg.norm(off - uv[0])) + 10.0])
     assume(np.min(np.linalg.norm(pts - off, axis=1)) > PAIR_TOL_PX + 0.5)  # (0.5: the curve's step)
     assert pair_plane(cam, GUIDES_MM, uv[0], off) is None
+    # ... and paired where the caller says it moved the points by that much (a sigma's perturbation: slack_px)
+    got = pair_plane(cam, GUIDES_MM, uv[0], off, slack_px=push)
+    assert got is not None and got[2] == (first, 1 - first)
 
 
 def test_a_users_isovalue_reaches_the_isolation_check():

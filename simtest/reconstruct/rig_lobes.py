@@ -158,12 +158,12 @@ def _along_the_rig(gray: np.ndarray, est, camera, rig, stretched: bool = True) -
 _TOPS_H_GRID = np.geomspace(1.0, PAIR_DEPTH_MAX_MM, int(round(np.log(PAIR_DEPTH_MAX_MM) / np.log(1.01))) + 1)
 
 
-def _tops(gray: np.ndarray, region) -> np.ndarray:
-    """The region's tops (bool, ROI indices): pixels within :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of its peak.
-    """
+def _tops(gray: np.ndarray, region, margin_rel: float = CLIP_LUMA_MARGIN_REL) -> np.ndarray:
+    """The region's tops (bool, ROI indices): pixels within ``margin_rel`` of its peak (default
+    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL`; 0: at the peak)."""
     mask, r0, c0 = region
     sub = gray[r0:r0 + mask.shape[0], c0:c0 + mask.shape[1]]
-    return mask & (sub >= (1.0 - CLIP_LUMA_MARGIN_REL) * float(sub[mask].max()))
+    return mask & (sub >= (1.0 - margin_rel) * float(sub[mask].max()))
 
 
 def _tops_depth(gray: np.ndarray, region) -> np.ndarray:
@@ -336,9 +336,21 @@ def _row(est, camera, uv: np.ndarray, what: str, how: str, **fields):
 def _tops_pair(gray: np.ndarray, region, camera, rig):
     """The region's two largest clipped tops (of at least :data:`~simtest.decisions.MIN_AREA_PX`, the smallest highlight
     detection takes: one pixel clipped by noise on a lobe's tail is no specular point) where the rig pairs them:
-    ``(centroids (2, 2), labels, the two labels, pair_plane's result)``, or None."""
+    ``(centroids (2, 2), labels, the two labels, pair_plane's result)``, or None. The tops within
+    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of the peak first (JPEG's broken tops); else those at the peak
+    where the margin's top narrows between them (:func:`_waisted`): two lobes near the scope whose tails sum to
+    within the margin between their plateaus are one top at the margin, two at the clip (one top that JPEG broke
+    into pieces at the clip is no narrower between them)."""
+    pair = _paired_tops(_tops(gray, region), region, camera, rig)
+    if pair is None and (pair := _paired_tops(_tops(gray, region, 0.0), region, camera, rig)) is not None:
+        return pair if _waisted(_tops_depth(gray, region), region, pair[0]) else None
+    return pair
+
+
+def _paired_tops(tops_mask: np.ndarray, region, camera, rig):
+    """:func:`_tops_pair` of the tops ``tops_mask`` (bool, ROI indices)."""
     mask, r0, c0 = region
-    _, labels, stats, centroids = cv2.connectedComponentsWithStats(_tops(gray, region).astype(np.uint8), connectivity=8)
+    _, labels, stats, centroids = cv2.connectedComponentsWithStats(tops_mask.astype(np.uint8), connectivity=8)
     tops = 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= MIN_AREA_PX)
     if len(tops) < 2:
         return None
@@ -388,7 +400,7 @@ def _pair_estimates(camera, rig, pts: np.ndarray, plane) -> list:
     for k, axis in np.ndindex(2, 2):
         moved = pts.copy()
         moved[k, axis] += TOPS_PLACE_SIGMA_PX
-        got = pair_plane(camera, rig.positions, moved[0], moved[1])
+        got = pair_plane(camera, rig.positions, moved[0], moved[1], slack_px=TOPS_PLACE_SIGMA_PX)
         if got is None:  # the moved pair off the curves: no sigma to state
             return []
         turns.append(angle_between_deg(got[0], normal))

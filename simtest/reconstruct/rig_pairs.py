@@ -315,7 +315,7 @@ def _pair_depth(camera, ray, Li, Lj, d0: float, partner) -> float:
     return float(np.exp(got.x)) if np.isfinite(got.fun) else d0
 
 
-def pair_plane(camera, positions_mm, a_uv, b_uv):
+def pair_plane(camera, positions_mm, a_uv, b_uv, slack_px: float = 0.0):
     """The plane of two highlights that are two guides' specular points on it (a stereo pair whose
     baseline is the guides'), solved both ways and the normals averaged.
 
@@ -325,6 +325,9 @@ def pair_plane(camera, positions_mm, a_uv, b_uv):
         As in :func:`pair_starts`.
     a_uv, b_uv : array_like of shape (2,)
         The two highlights' specular points (u, v), px.
+    slack_px : float, optional
+        Added to :data:`PAIR_TOL_PX` where the pairing is sought (:func:`pair_starts`): the px by which a caller
+        moved the points on purpose (a sigma's perturbation of a pair already found).
 
     Returns
     -------
@@ -336,7 +339,7 @@ def pair_plane(camera, positions_mm, a_uv, b_uv):
     cam = _model(camera)
     L = np.asarray(positions_mm, np.float64).reshape(-1, 3)
     a, b = np.asarray(a_uv, np.float64).reshape(2), np.asarray(b_uv, np.float64).reshape(2)
-    (sa,), (sb,) = pair_starts(cam, L, a[None], b[None]), pair_starts(cam, L, b[None], a[None])
+    (sa,), (sb,) = (pair_starts(cam, L, p[None], q[None], [slack_px], [0.0]) for p, q in ((a, b), (b, a)))
     if len(sa) != 1 or len(sb) != 1 or sa[0][:2] != sb[0][1::-1]:
         return None
     normals, depths = [], []
