@@ -161,12 +161,10 @@ def _plane_points(K, rig, n, h):
     return np.array(pts)
 
 
-@settings(max_examples=25, deadline=None)
-@given(tilt=st.floats(0.0, 35.0), az=st.floats(0.0, 360.0), h=st.floats(8.0, 40.0))
-def test_a_depthless_normal_at_the_pairs_depth_puts_the_partner_where_the_plane_does(tilt, az, h):
-    # a fit that holds the normal and not the depth is judged at the depth the pair gives: the true
-    # normal puts the partner on its point (the pair's depth is interpolated: 0.05 px, as below), and
-    # a normal 5 deg off across the baseline puts it off
+def _pair_case(tilt, az, h):
+    """``(K, rig, n, pts, starts)``: the colonoscope's two guides over the plane tilted ``tilt`` deg toward azimuth
+    ``az`` at distance ``h`` mm, its guides' specular points, and guide 0's point's pair starts (assumed to pair it
+    with guide 1's)."""
     K = np.array([[300.0, 0, 200.0], [0, 300.0, 150.0], [0, 0, 1]])
     rig = LightRig(tuple(Light(position_mm=tuple(L)) for L in GUIDES_MM))
     t, a = np.radians(tilt), np.radians(az)
@@ -174,6 +172,16 @@ def test_a_depthless_normal_at_the_pairs_depth_puts_the_partner_where_the_plane_
     pts = _plane_points(K, rig, n, h)
     (starts,) = pair_starts(K, rig.positions, pts[:1], pts)
     assume(starts and starts[0][:2] == (0, 1))
+    return K, rig, n, pts, starts
+
+
+@settings(max_examples=25, deadline=None)
+@given(tilt=st.floats(0.0, 35.0), az=st.floats(0.0, 360.0), h=st.floats(8.0, 40.0))
+def test_a_depthless_normal_at_the_pairs_depth_puts_the_partner_where_the_plane_does(tilt, az, h):
+    # a fit that holds the normal and not the depth is judged at the depth the pair gives: the true
+    # normal puts the partner on its point (the pair's depth is interpolated: 0.05 px, as below), and
+    # a normal 5 deg off across the baseline puts it off
+    K, rig, n, pts, starts = _pair_case(tilt, az, h)
     assert pair_misfit_px(K, rig, pts[0], starts[:1], n, None) < 0.05
     off = unit(n + np.tan(np.radians(5.0)) * np.array([1.0, 0.0, 0.0]))
     assert pair_misfit_px(K, rig, pts[0], starts[:1], off, None) > 1.0
@@ -232,13 +240,7 @@ def test_a_partner_off_the_curve_by_less_than_the_bps_wander_gives_the_pairs_sta
     # guides and depth (within 5 %: the curve's nearest point to the moved partner lies beside the true one)
     # within PAIR_TOL_PX plus the two BPs' wander
     from simtest.decisions import PAIR_TOL_PX
-    K = np.array([[300.0, 0, 200.0], [0, 300.0, 150.0], [0, 0, 1]])
-    rig = LightRig(tuple(Light(position_mm=tuple(L)) for L in GUIDES_MM))
-    t, a = np.radians(tilt), np.radians(az)
-    n = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), -np.cos(t)])
-    pts = _plane_points(K, rig, n, h)
-    (exact,) = pair_starts(K, rig.positions, pts[:1], pts)
-    assume(exact and exact[0][:2] == (0, 1))
+    K, rig, n, pts, exact = _pair_case(tilt, az, h)
     # the curve's direction at the partner: guide 1's point with the BP held as guide 0's, the depth 1 % on
     d = exact[0][2]
     tangent = np.subtract(*pair_partners(K, rig, pts[0], ((0, 1, d * 1.01), (0, 1, d))))

@@ -35,8 +35,9 @@ def test_weak_twins_near_the_scope_whose_pair_fit_places_both_get_light_aware_no
         assert angle_between_deg(s["normal"], h["normal"]) < 0.2
 
 
-def _rows_at_truth(tmp_path, name):
-    """The command line's rows nearest each true specular point of the pinned probe frame ``name``."""
+def _rows_at_truth(tmp_path, name, normal_from, within_deg):
+    """The command line's rows nearest each true specular point of the pinned probe frame ``name``: each within 4 px
+    of it, ok, its normal from ``normal_from`` (a name, or None: any) within ``within_deg`` of the truth."""
     shutil.copy(DATA / f"{name}.png", tmp_path / "frame.png")
     shutil.copy(DATA / f"{name}_camera.json", tmp_path / "camera.json")
     truth = json.loads((DATA / f"{name}_truth.json").read_text())["highlights"]
@@ -44,7 +45,9 @@ def _rows_at_truth(tmp_path, name):
     near = [min(specs, key=lambda s: np.hypot(*(np.asarray(s["bp_px"]) - h["specular_px"]))) for h in truth]
     for h, s in zip(truth, near):
         assert np.hypot(*(np.asarray(s["bp_px"]) - h["specular_px"])) < 4.0
-    return truth, near
+        assert s["status"] == "ok" and normal_from in (None, s["normal_from"]), s["detail"]
+        assert angle_between_deg(s["normal"], h["normal"]) < within_deg
+    return near
 
 
 def test_weak_twins_whose_bps_wandered_off_the_rigs_curve_get_the_pairs_start(tmp_path):
@@ -53,11 +56,8 @@ def test_weak_twins_whose_bps_wandered_off_the_rigs_curve_get_the_pairs_start(tm
     # lobe's own ROI leaves the depth loose (relative sigma 0.9 to 1.4). rig_twins paired them within PAIR_TOL_PX
     # plus their wander, yet the fits' pair starts asked PAIR_TOL_PX alone: no pair start, no confirmation, both
     # not_specular with the BP ray 11 to 12 deg off. From the pair's depth both fits are 0.05 deg off
-    truth, rows = _rows_at_truth(tmp_path, "probe801_027")
-    for h, s in zip(truth, rows):
-        assert s["status"] == "ok" and s["normal_from"] == "photometric_fit", s["detail"]
-        # 0.2 deg: four times either fit's error here; the BP ray is 11 to 12 deg off
-        assert angle_between_deg(s["normal"], h["normal"]) < 0.2
+    # 0.2 deg: four times either fit's error here; the BP ray is 11 to 12 deg off
+    _rows_at_truth(tmp_path, "probe801_027", "photometric_fit", 0.2)
 
 
 def test_a_weak_twin_whose_own_fit_misfits_is_confirmed_by_its_twins_plane(tmp_path):
@@ -65,12 +65,9 @@ def test_a_weak_twin_whose_own_fit_misfits_is_confirmed_by_its_twins_plane(tmp_p
     # fit places both and is 0.2 deg off; the other's own pair fit finds the undeclared vignetting's curved residual
     # (plane_misfit) and gets that plane as rig_pair (0.2 deg off), then stayed not_specular: only its own fit
     # could confirm its twin. One plane places both, whichever lobe it was fitted on
-    truth, rows = _rows_at_truth(tmp_path, "probe802_014")
+    # 0.3 deg: 1.5 times the fit's error here (0.2 deg); the BP ray is 11.6 to 12.3 deg off
+    rows = _rows_at_truth(tmp_path, "probe802_014", None, 0.3)
     assert sorted(s["normal_from"] for s in rows) == ["photometric_fit", "rig_pair"]
-    for h, s in zip(truth, rows):
-        assert s["status"] == "ok", s["detail"]
-        # 0.3 deg: 1.5 times the fit's error here (0.2 deg); the BP ray is 11.6 to 12.3 deg off
-        assert angle_between_deg(s["normal"], h["normal"]) < 0.3
     assert any("the plane that places both confirms (rig_pair)" in s["detail"] for s in rows)
 
 
@@ -80,19 +77,13 @@ def test_two_near_lobes_whose_plateaus_join_within_the_jpeg_margin_get_the_pairs
     # the whole frame one merged region whose plane fit runs off; before, guide 2's row `merged` (BP ray 10 deg off)
     # and guide 1 none. At the clip the two discs part, the margin's top narrows between them, and the rig pairs
     # their centroids: both rig_pair rows, 0.18 deg off
-    truth, rows = _rows_at_truth(tmp_path, "probe801_037")
-    for h, s in zip(truth, rows):
-        assert s["status"] == "ok" and s["normal_from"] == "rig_pair", s["detail"]
-        # 0.3 deg: the pair's centroids 0.7 and 2.2 px off the specular points (TOPS_PLACE_SIGMA_PX), 160 px apart
-        assert angle_between_deg(s["normal"], h["normal"]) < 0.3
+    # 0.3 deg: the pair's centroids 0.7 and 2.2 px off the specular points (TOPS_PLACE_SIGMA_PX), 160 px apart
+    _rows_at_truth(tmp_path, "probe801_037", "rig_pair", 0.3)
 
 
 def test_one_clipped_top_that_jpeg_broke_at_the_clip_is_not_split_into_the_guides(tmp_path):
     # The same probe's frame 24 (JPEG, 9.7 mm): each guide's clipped top is one at the margin, and at the clip one
     # of them breaks into pieces 12 px apart that the rig's curves pair at some depth. Without the waist between
     # them that pair took guide 1's row 8.5 px off its point, 8.8 deg off; each guide keeps its plane fit
-    truth, rows = _rows_at_truth(tmp_path, "probe801_024")
-    for h, s in zip(truth, rows):
-        assert s["status"] == "ok" and s["normal_from"] == "photometric_fit", s["detail"]
-        # 0.1 deg: five times either fit's error here (0.011 and 0.021 deg)
-        assert angle_between_deg(s["normal"], h["normal"]) < 0.1
+    # 0.1 deg: five times either fit's error here (0.011 and 0.021 deg)
+    _rows_at_truth(tmp_path, "probe801_024", "photometric_fit", 0.1)
