@@ -232,14 +232,15 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
 
 
 def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, camera, rig) -> str:
-    """The name of the fit that confirms, "" where none does: whether the plane fit of ``rows[k]`` (its BP row ``k`` of ``bps``), ok with its distance, puts one guide's
-    specular point on its own row and another guide's on another row: within ``reach`` of the row's BP or inside
-    its closed primary isophote (``reach``: :data:`~simtest.decisions.PAIR_TOL_PX` plus each BP's wander). The
-    twin that let a weak peak pass is a claim on the rig's geometry, which only such a fit checks (a bump on a
-    lobe's broad shoulder, or a pale spot of texture, can have a twin too). Inside the isophote counts, the row's
-    own too: a broad lobe's BP climbs the diffuse slope away from its specular point by more than its isophote does.
-    The plane may be the row's own fit's or its ``rig_pair``'s, another row's fit that places both
-    (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`): one plane, whichever lobe it was fitted on."""
+    """The name of the fit that confirms a weak twin, "" where none does: a plane fit of ``rows[k]`` (its BP row
+    ``k`` of ``bps``), ok with its distance, that puts one guide's specular point on its own row and another guide's
+    on another row: within ``reach`` of the row's BP or inside its closed primary isophote (``reach``:
+    :data:`~simtest.decisions.PAIR_TOL_PX` plus each BP's wander). The twin that let a weak peak pass is a claim on
+    the rig's geometry, which only such a fit checks (a bump on a lobe's broad shoulder, or a pale spot of texture,
+    can have a twin too). Inside the isophote counts, the row's own too: a broad lobe's BP climbs the diffuse slope
+    away from its specular point by more than its isophote does. The plane may be the row's own fit's or its
+    ``rig_pair``'s, another row's fit that places both (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`):
+    one plane, whichever lobe it was fitted on."""
     fits = [f for name in ("photometric_fit", "rig_pair") if (f := (rows[k].light_aware or {}).get(name)) is not None
             and f.ok and f.distance_mm is not None]
     for fit in fits:
