@@ -333,18 +333,15 @@ def _row(est, camera, uv: np.ndarray, what: str, how: str, **fields):
                                bp_ray=-np.asarray(_model(camera).pixel_to_ray(uv[None]), np.float64)[0], **fields)
 
 
-def _tops_pair(gray: np.ndarray, region, camera, rig):
+def _tops_pair(gray: np.ndarray, region, camera, rig, at_clip: bool = False):
     """The region's two largest clipped tops (of at least :data:`~simtest.decisions.MIN_AREA_PX`, the smallest highlight
     detection takes: one pixel clipped by noise on a lobe's tail is no specular point) where the rig pairs them:
     ``(centroids (2, 2), labels, the two labels, pair_plane's result)``, or None. The tops within
-    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of the peak first (JPEG's broken tops); else those at the peak
-    where the margin's top narrows between them (:func:`_waisted`): two lobes near the scope whose tails sum to
-    within the margin between their plateaus are one top at the margin, two at the clip (one top that JPEG broke
-    into pieces at the clip is no narrower between them)."""
-    pair = _paired_tops(_tops(gray, region), region, camera, rig)
-    if pair is None and (pair := _paired_tops(_tops(gray, region, 0.0), region, camera, rig)) is not None:
-        return pair if _waisted(_tops_depth(gray, region), region, pair[0]) else None
-    return pair
+    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of the peak (JPEG's broken tops); ``at_clip``, those at the peak
+    where the margin's top narrows between them (:func:`_waisted`): two lobes near the scope whose tails sum to within
+    the margin between their plateaus are one top at the margin, two at the clip (a top JPEG broke is not waisted)."""
+    pair = _paired_tops(_tops(gray, region, 0.0 if at_clip else CLIP_LUMA_MARGIN_REL), region, camera, rig)
+    return pair if not at_clip or pair is None or _waisted(_tops_depth(gray, region), region, pair[0]) else None
 
 
 def _paired_tops(tops_mask: np.ndarray, region, camera, rig):
@@ -508,6 +505,8 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None,
             # the clipped tops' pair, once for both (the rig's pair of one guide is none)
             pair = _tops_pair(gray, region, camera, rig) if est.saturated and region is not None else None
             rows = _rows(est, camera, rig, gray, region, pair, others, i in weak)
+            if pair is None and rows is None and est.saturated and region is not None:
+                pair = _tops_pair(gray, region, camera, rig, at_clip=True)  # (no split: the tops at the clip)
             rows = _pair_rows(est, camera, rig, region, pair, others, rows) or rows
             est = est if est.ok else dataclasses.replace(est, light_aware={})  # a rejected row: no fits
         if rows is not None:
