@@ -7,6 +7,8 @@ rig module's), row A at guide 1's with an ok plane fit, row B at guide 2's whose
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -14,9 +16,9 @@ from hypothesis import strategies as st
 from simtest.decisions import PAIR_TOL_PX
 from simtest.geometry.lights import Light, LightRig
 from simtest.reconstruct._pixels import Roi
-from simtest.reconstruct.assemble import SpecularityEstimate
+from simtest.reconstruct.assemble import IsophoteEstimate, SpecularityEstimate
 from simtest.reconstruct.lightaware import LightAwareEstimate
-from simtest.reconstruct.rig_lobes import shared_plane_rows
+from simtest.reconstruct.rig_lobes import _own_guide, shared_plane_rows
 from simtest.simulate.offset import specular_point
 
 F, SIZE = 300.0, 400
@@ -105,3 +107,42 @@ def test_of_two_planes_that_place_the_row_the_surer_one_lends():
         assert made.normal_from == "rig_pair"
         assert np.array_equal(made.normal, n if first_sigma < second_sigma else m)
         assert made.normal_sigma_deg == min(first_sigma, second_sigma)
+
+
+def _circle(centre, radius, n=48):
+    """A closed primary isophote: ``n`` points on a circle (u, v) px."""
+    a = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    return np.column_stack([centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a)])
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(5.0, 50.0), st.floats(0.0, 360.0), st.floats(8.0, 50.0), st.floats(0.0, 2 * np.pi),
+       st.booleans())
+def test_a_donor_whose_bp_left_its_point_lends_where_its_isophote_holds_it(tilt, az, h, turn, holds):
+    # the donor's BP PAIR_TOL_PX + 1 px from its guide's specular point, its closed isophote a circle about the BP (no
+    # wander: the reach is PAIR_TOL_PX): the plane places its own highlight exactly where the isophote holds that point
+    # (radius 1 px beyond it, or 1 px short of it)
+    n, uv, depths = _plane(tilt, az, h)
+    rows = _rows(n, uv, depths, h)
+    d = PAIR_TOL_PX + 1.0
+    bp = np.asarray(uv[0]) + d * np.array([np.cos(turn), np.sin(turn)])
+    if np.linalg.norm(bp - uv[1]) < d + 2.0:
+        return  # (the circle would hold guide 2's point too: the next test's case)
+    ring = IsophoteEstimate(0.7, "ok", points_uv=_circle(bp, d + (1.0 if holds else -1.0)), closed=True)
+    rows[0] = replace(_row(bp, rows[0].light_aware["photometric_fit"]), isophotes=(ring,))
+    want = "rig_pair" if holds else "bp_ray"
+    assert [e.recommended.normal_from for e in shared_plane_rows(rows, K, RIG)] == ["photometric_fit", want]
+
+
+def test_an_isophote_holding_both_guides_points_places_neither():
+    # _own_guide: beyond the reach, the guide whose point the row's isophote holds, where it holds one only
+    pts = np.array([[100.0, 100.0], [130.0, 100.0]])
+    ring = IsophoteEstimate(0.7, "ok", points_uv=_circle((115.0, 100.0), 20.0), closed=True)
+    row = replace(_row((115.0, 100.0), None), isophotes=(ring,))
+    assert _own_guide(pts, (115.0, 100.0), PAIR_TOL_PX, row) is None
+    ring = IsophoteEstimate(0.7, "ok", points_uv=_circle((110.0, 100.0), 12.0), closed=True)
+    row = replace(row, isophotes=(ring,))
+    assert _own_guide(pts, (115.0, 100.0), PAIR_TOL_PX, row) == 0
+    assert _own_guide(pts, (115.0, 100.0), PAIR_TOL_PX) is None  # (no row: the reach alone)
+    open_ring = IsophoteEstimate(0.7, "ok", points_uv=_circle((110.0, 100.0), 12.0), closed=False)
+    assert _own_guide(pts, (115.0, 100.0), PAIR_TOL_PX, replace(row, isophotes=(open_ring,))) is None

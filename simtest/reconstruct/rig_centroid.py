@@ -37,10 +37,10 @@ from simtest.reconstruct.lightaware import LightAwareEstimate, bisector, reflect
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.verify import WEAK_TWIN, specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
-from simtest.reconstruct.isophote import polygon_contains
 from simtest.reconstruct.rig_pairs import estimate_wander_px
 from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, guide_specular_points,
-                                           partner_rows, shared_plane_rows, split_fused_lobes, splittable)
+                                           isophote_holds, partner_rows, shared_plane_rows, split_fused_lobes,
+                                           splittable)
 
 __all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
 
@@ -237,19 +237,16 @@ def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, came
     on another row: within ``reach`` of the row's BP or inside its closed primary isophote (``reach``:
     :data:`~simtest.decisions.PAIR_TOL_PX` plus each BP's wander). The twin that let a weak peak pass is a claim on
     the rig's geometry, which only such a fit checks (a bump on a lobe's broad shoulder, or a pale spot of texture,
-    can have a twin too). Inside the isophote counts, the row's own too: a broad lobe's BP climbs the diffuse slope
-    away from its specular point by more than its isophote does. The plane may be the row's own fit's or its
-    ``rig_pair``'s, another row's fit that places both (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`):
-    one plane, whichever lobe it was fitted on."""
+    can have a twin too). Inside the isophote counts, the row's own too (:func:`~simtest.reconstruct.rig_lobes.
+    isophote_holds`). The plane may be the row's own fit's or its ``rig_pair``'s, another row's fit that places both
+    (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`): one plane, whichever lobe it was fitted on."""
     fits = [f for name in ("photometric_fit", "rig_pair") if (f := (rows[k].light_aware or {}).get(name)) is not None
             and f.ok and f.distance_mm is not None]
     for fit in fits:
         points = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
         near = np.linalg.norm(points[:, None] - bps[None], axis=-1) <= reach[None]  # (guides, rows)
         for r, e in enumerate(rows):
-            p = e.primary
-            if p is not None and p.closed and p.points_uv is not None and len(p.points_uv) >= 3:
-                near[:, r] |= polygon_contains(np.asarray(p.points_uv, np.float64), points)
+            near[:, r] |= isophote_holds(e, points)
         own, other = near[:, k], np.delete(near, k, axis=1).any(axis=1)
         if (own[:, None] & other[None, :] & ~np.eye(len(own), dtype=bool)).any():
             return fit.estimator

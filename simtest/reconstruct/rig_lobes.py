@@ -23,8 +23,9 @@ lobe the frame's edge cuts (its region, ``touches_border``, or its isophote, ``c
 where its fit, ok with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top).
 
 Partner. An ok row whose plane fit (ok, with its distance) puts its own guide's point on its BP and another guide's on a
-rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander) makes that candidate the other guide's row where
-the candidate's own plane fit puts both points back: a weak lobe whose isophote the other's tail deforms. A candidate
+rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander, the placing row's point also inside its closed
+isophote: :func:`isophote_holds`) makes that candidate the other guide's row where the candidate's own plane fit puts
+both points back: a weak lobe whose isophote the other's tail deforms. A candidate
 with no closed isophote to measure its BP's wander (a lobe the frame cuts; a pale one, ``not_specular``; a weak one
 whose core is ``too_small``) is the other guide's where its bright region holds that point, its fit's too. An ok row
 whose recommended quadric (one curved patch fitted to every guide's lobe) puts its own guide's specular point on its BP
@@ -36,9 +37,9 @@ it that guide's row (status ``ok``, BP at its specular point) where it puts both
 Shared plane. An ok row left with the BP ray (its own fits misfit: another guide's lobe on its ROI, a lobe the model
 does not hold) is a guide's highlight on the plane of an ok row whose recommended plane fit (ok, with its distance)
 puts its own guide's point on its BP and another guide's on this row's (each within ``PAIR_TOL_PX`` plus the BP's
-wander): the row gets that plane as ``rig_pair`` (of two such, the smaller sigma's), its depth where its ray meets the
-plane, the plane's sigma. One plane images every guide's highlight; two highlights at the points it predicts are its
-evidence.
+wander, or inside the row's closed isophote): the row gets that plane as ``rig_pair`` (of two such, the smaller
+sigma's), its depth where its ray meets the plane, the plane's sigma. One plane images every guide's highlight; two
+highlights at the points it predicts are its evidence.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each of at least
 :data:`~simtest.decisions.MIN_AREA_PX`) where the rig pairs them gives one row per top at its centroid, with the plane
@@ -62,6 +63,7 @@ from simtest.geometry.angles import angle_between_deg
 from simtest.reconstruct._pixels import Roi, uv_to_rc
 from simtest.reconstruct.assemble import SpecularityEstimate
 from simtest.reconstruct.detect_pixels import luma, noise_sigma
+from simtest.reconstruct.isophote import polygon_contains
 from simtest.reconstruct.light_fits import (NOT_FITTED, PLANE_ONLY, _in_frame, _offset_rig, _reach, light_aware_estimates,
                                            lobe_size_px)
 from simtest.reconstruct.lightaware import LightAwareEstimate
@@ -69,8 +71,8 @@ from simtest.reconstruct.recommend import without_guide_spread
 from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wander_px, guide_specular_points,
                                            other_guide_curves, pair_plane, patch_specular_points)
 
-__all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "partner_rows", "shared_plane_rows",
-           "split_fused_lobes", "splittable"]
+__all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "isophote_holds", "partner_rows",
+           "shared_plane_rows", "split_fused_lobes", "splittable"]
 
 #: Candidates whose statuses the rule may turn into rows of fused lobes (module docstring, :func:`splittable`).
 SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "contour_cut", "touches_border",
@@ -563,14 +565,26 @@ def _placing_plane(est, bp, reach: float, camera, rig):
     if not (est.ok and est.recommended.normal_from == "photometric_fit" and _plane(fit)):
         return None
     pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
-    return None if (i := _own_guide(pts, bp, reach)) is None else (fit, pts, i)
+    return None if (i := _own_guide(pts, bp, reach, est)) is None else (fit, pts, i)
 
 
-def _own_guide(pts: np.ndarray, bp, reach: float) -> int | None:
-    """The guide whose point of ``pts`` (J, 2) lies nearest ``bp``, where within ``reach`` px; else None."""
+def isophote_holds(est, points) -> np.ndarray:
+    """Which of ``points`` (N, 2) px lie inside ``est``'s closed primary isophote (all False without one): a broad
+    lobe's BP climbs the diffuse slope away from its specular point by more than its isophote does."""
+    points = np.asarray(points, np.float64).reshape(-1, 2)
+    p = est.primary
+    if p is None or not p.closed or p.points_uv is None or len(p.points_uv) < 3:
+        return np.zeros(len(points), bool)
+    return np.asarray(polygon_contains(np.asarray(p.points_uv, np.float64), points), bool)
+
+
+def _own_guide(pts: np.ndarray, bp, reach: float, est=None) -> int | None:
+    """The guide whose point of ``pts`` (J, 2) lies nearest ``bp``, where within ``reach`` px; else, given the row
+    ``est``, the one guide whose point its closed isophote holds (:func:`isophote_holds`); else None."""
     own = np.nan_to_num(np.linalg.norm(pts - np.asarray(bp, np.float64), axis=1), nan=np.inf)
-    i = int(np.argmin(own))
-    return i if own[i] <= reach else None
+    held = [np.argmin(own)] if own.min() <= reach else [] if est is None else np.flatnonzero(
+        isophote_holds(est, np.nan_to_num(pts, nan=-1e9)))
+    return int(held[0]) if len(held) == 1 else None
 
 
 def _quadric_partners(out: list, a: int, bps: np.ndarray, wander: np.ndarray, camera, rig, gray) -> None:
@@ -634,7 +648,7 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) 
             q = guide_specular_points(camera, rig, pf.normal, pf.distance_mm) if _plane(pf) else None
             if q is None or not ((np.linalg.norm(q[j] - bps[c]) <= PAIR_TOL_PX + wander[c]
                                   if region is None else _inside(region, q[j][None])[0])
-                                 and np.linalg.norm(q[i] - bps[a]) <= PAIR_TOL_PX + wander[a]):
+                                 and _own_guide(q, bps[a], PAIR_TOL_PX + wander[a], est) == i):
                 continue
             out[c] = _row(out[c], camera, q[j], f"guide {j + 1}'s highlight where guide {i + 1}'s fit puts it",
                           f"BP at its specular point, normal from its photometric fit, which puts guide {i + 1}'s back",
@@ -687,7 +701,7 @@ def _unseen_partner(image, gray, donor, uv, guides, donor_bp, reach: float, came
     if not _plane(pf):
         return None
     q = guide_specular_points(camera, rig, pf.normal, pf.distance_mm)
-    if not (np.linalg.norm(q[j] - uv) <= PAIR_TOL_PX and np.linalg.norm(q[i] - donor_bp) <= reach):
+    if not (np.linalg.norm(q[j] - uv) <= PAIR_TOL_PX and _own_guide(q, donor_bp, reach, donor) == i):
         return None
     return _row(cand, camera, q[j], f"guide {j + 1}'s highlight where guide {i + 1}'s fit puts it",
                 f"BP at its specular point, normal from its photometric fit, which puts guide {i + 1}'s back",
@@ -720,7 +734,7 @@ def shared_plane_rows(estimates, camera, rig) -> list:
     # the rows given (a row made here is no plane fit's), the surest plane first where two place one row
     for a, (fit, pts, i) in sorted(donors, key=lambda d: np.inf if (g := d[1][0].normal_sigma_deg) is None else g):
         for b in [b for b in left if "rig_pair" not in out[b].light_aware]:
-            if (j := _own_guide(pts, bps[b], reach[b])) is None or j == i:
+            if (j := _own_guide(pts, bps[b], reach[b], out[b])) is None or j == i:
                 continue
             ray = np.asarray(_model(camera).pixel_to_ray(bps[b][None]), np.float64)[0]
             depth = fit.distance_mm / -float(np.asarray(fit.normal) @ ray)  # the plane n . X = -h along the ray
