@@ -16,6 +16,9 @@ __all__ = ["CONNECT_TIMEOUT", "SchedulerError", "check_scheduler_address", "conn
 #: in milliseconds; a wrong address should fail within a few seconds).
 CONNECT_TIMEOUT = "3s"
 
+#: How long the TCP probe before Dask's client waits, s: a port nothing listens on refuses at once; silence is Dask's.
+PROBE_TIMEOUT_S = 1.0
+
 #: The protocols of Dask's communication layer that an address may name.
 PROTOCOLS = ("tcp", "tls", "ucx", "ws", "wss", "inproc")
 
@@ -77,10 +80,20 @@ def connect(address: str, timeout: str | None = None):
     Raises
     ------
     SchedulerError
-        A bad address, or no answer within the time-out.
+        A bad address, a refused connection (nothing listens at that port), or no answer within the time-out.
     """
     check_scheduler_address(address)
     wait = CONNECT_TIMEOUT if timeout is None else timeout
+    addressing = require("distributed.comm.addressing")
+    proto, loc = addressing.parse_address(address)
+    if proto == "tcp":  # a port nothing listens on refuses at once, where Dask retries until the time-out
+        try:
+            socket.create_connection(addressing.parse_host_port(loc), timeout=PROBE_TIMEOUT_S).close()
+        except ConnectionRefusedError:
+            raise SchedulerError(f"--scheduler {address}: cannot connect: the connection was refused (nothing "
+                                 "listens at that port)") from None
+        except OSError:
+            pass  # (no answer yet: Dask's wait decides)
     client_cls = require("distributed", purpose="--scheduler").Client
     try:
         return client_cls(address, timeout=wait, set_as_default=False)

@@ -52,3 +52,16 @@ def test_a_bad_or_silent_scheduler_is_one_line_before_any_work(tmp_path, address
     assert lines[-1].startswith("error: --scheduler") and why in lines[-1], r.stderr
     assert "Traceback" not in r.stderr
     assert not (tmp_path / "out" / "quick").exists()
+
+
+def test_a_port_nothing_listens_on_is_refused_at_once_not_waited_for():
+    # a port just freed on localhost refuses the connection: the error says so at once (Dask's client would retry
+    # until CONNECT_TIMEOUT and say only that it timed out)
+    import socket
+
+    from simtest._dask import SchedulerError, connect
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(SchedulerError, match="cannot connect: the connection was refused"):
+        connect(f"tcp://127.0.0.1:{port}")
