@@ -27,13 +27,18 @@ class SchedulerError(ValueError):
     """A scheduler address that cannot work, or a scheduler that does not answer (one line)."""
 
 
-def check_scheduler_address(address: str) -> None:
+def check_scheduler_address(address: str) -> tuple[str, str | None, int | None]:
     """Refuse a scheduler address that cannot work, before trying to connect.
 
     Parameters
     ----------
     address : str
         ``PROTOCOL://HOST:PORT``, e.g. ``tcp://127.0.0.1:8786``.
+
+    Returns
+    -------
+    (protocol, host, port) : tuple
+        As parsed (host and port None for ``inproc``).
 
     Raises
     ------
@@ -60,6 +65,7 @@ def check_scheduler_address(address: str) -> None:
             socket.getaddrinfo(host, port)
         except (OSError, UnicodeError) as exc:
             raise SchedulerError(f"{where}: host {host!r} does not resolve: {exc}") from None
+    return proto, host, port
 
 
 def connect(address: str, timeout: str | None = None):
@@ -82,13 +88,11 @@ def connect(address: str, timeout: str | None = None):
     SchedulerError
         A bad address, a refused connection (nothing listens at that port), or no answer within the time-out.
     """
-    check_scheduler_address(address)
+    proto, host, port = check_scheduler_address(address)
     wait = CONNECT_TIMEOUT if timeout is None else timeout
-    addressing = require("distributed.comm.addressing")
-    proto, loc = addressing.parse_address(address)
     if proto == "tcp":  # a port nothing listens on refuses at once, where Dask retries until the time-out
         try:
-            socket.create_connection(addressing.parse_host_port(loc), timeout=PROBE_TIMEOUT_S).close()
+            socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S).close()
         except ConnectionRefusedError:
             raise SchedulerError(f"--scheduler {address}: cannot connect: the connection was refused (nothing "
                                  "listens at that port)") from None
