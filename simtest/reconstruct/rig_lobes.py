@@ -582,8 +582,9 @@ def _own_guide(pts: np.ndarray, bp, reach: float, est=None) -> int | None:
     """The guide whose point of ``pts`` (J, 2) lies nearest ``bp``, where within ``reach`` px; else, given the row
     ``est``, the one guide whose point its closed isophote holds (:func:`isophote_holds`); else None."""
     own = np.nan_to_num(np.linalg.norm(pts - np.asarray(bp, np.float64), axis=1), nan=np.inf)
-    held = [np.argmin(own)] if own.min() <= reach else [] if est is None else np.flatnonzero(
-        isophote_holds(est, np.nan_to_num(pts, nan=-1e9)))
+    if own.min() <= reach:
+        return int(np.argmin(own))
+    held = () if est is None else np.flatnonzero(isophote_holds(est, np.nan_to_num(pts, nan=-1e9)))
     return int(held[0]) if len(held) == 1 else None
 
 
