@@ -31,7 +31,8 @@ pass of the middle stages):
    light-aware estimators of ``lightaware`` on the ok highlights; ``rig_lobes`` gives fused guides' lobes
    a row each (and a row left with the BP ray the plane that places it), ``rig_pairs`` says where the other
    guides' highlights lie, ``rig_centroid`` fits fused lobes by their centroid, ``curved_lobes`` a curved
-   patch's lobes, which the plane's checks reject, by one patch fit; ``recommend`` picks each highlight's normal.
+   patch's lobes, which the plane's checks reject, by one patch fit; ``lone_lobes`` confirms a weak lobe whose
+   twin lies outside the frame; ``recommend`` picks each highlight's normal.
 7. ``result`` (``Reconstruction``, what :func:`reconstruct` returns, and its tables), written by ``io`` (``estimates.json``),
    ``table`` (Parquet), ``overlay`` and ``view3d``; ``frames`` runs folders and videos, ``cli`` the command.
 

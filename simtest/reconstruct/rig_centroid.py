@@ -35,6 +35,7 @@ from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_light_aware
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector, reflection_offset_deg
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
+from simtest.reconstruct.lone_lobes import lone_lobe_rows
 from simtest.reconstruct.verify import WEAK_TWIN, specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
 from simtest.reconstruct.rig_pairs import estimate_wander_px
@@ -187,8 +188,9 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     given their centroid light's normal, then a curved patch's guide lobes fitted as one
     (:func:`~simtest.reconstruct.curved_lobes.curved_lobe_rows`), the ok plane fits' sigmas raised by
     their miss of the law of reflection at the BP (:func:`_obeys_reflection`), then an ok row left with the BP ray
-    given the plane of a row that places both (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`); a list
-    of SpecularityEstimate.
+    given the plane of a row that places both (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`), then,
+    where no row is ok, a weak lone lobe its plane fit confirms
+    (:func:`~simtest.reconstruct.lone_lobes.lone_lobe_rows`); a list of SpecularityEstimate.
     """
     kwargs = fit_arguments(image, kwargs) if _offset_rig(rig) else kwargs  # made once for both steps
     # a weak twin is ok to the fits and the rig's rules, and stays so where its plane fit confirms the twin (its
@@ -228,7 +230,8 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
                    "and another's on another highlight)")
             out[k] = dataclasses.replace(out[k], status="ok" if yes else "not_specular",
                                          detail=f"{out[k].detail}, {why}")
-    return out
+    return lone_lobe_rows(image, out, camera, rig, kwargs, gray=gray,
+                          refused={k for k, e in enumerate(out) if e.bp_px is not None and tuple(e.bp_px) in weak_bps})
 
 
 def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, camera, rig) -> str:

@@ -57,7 +57,7 @@ from simtest.reconstruct.rig_pairs import (PAIR_TOL_PX, estimate_wander_px, othe
 __all__ = ["bp_checks", "shared_passes", "PALENESS_MAX", "WHITE_CHROMA", "SIGNIFICANCE_MIN", "CONTRAST_MIN",
            "PANEL_STD_REL", "PANEL_FRACTION_MAX", "NEIGHBOUR_REL", "OWN_RADIUS_PX", "SURROUND_REL", "OWN_REL",
            "SURROUND_FRACTION_MAX", "RESIDUAL_MAX_REL", "MINOR_AXIS_MIN_PX", "COEFFICIENTS", "Evidence",
-           "frame_evidence", "assess", "confidence", "confidence_features", "verdict"]
+           "frame_evidence", "assess", "confidence", "confidence_features", "verdict", "weak_white_peaks"]
 
 @dataclass(frozen=True)
 class Evidence:
@@ -482,6 +482,29 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
     n = len(bps_uv)
     if not n:
         return []
+    ev = _bp_evidence(image, gray, bps_uv, clipped, full_scale=full_scale, noise=noise, grey=grey, response=response,
+                      background_px=background_px)
+    if twins is not None:
+        ev = ev.with_twins(twins)
+    checks = verdict(ev, np.full(n, np.nan), np.zeros(n, bool))
+    return [detail if status == "not_specular" else None for status, detail in checks]
+
+
+def weak_white_peaks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: np.ndarray, *,
+                     full_scale: float, noise: float, grey: bool = False, response=None,
+                     background_px: int | None = None) -> np.ndarray:
+    """Which BPs are white peaks of significant height that the paleness or contrast bar alone refuses: the
+    peaks a rig twin would let pass (:meth:`Evidence.with_twins`' ``which``). Arguments as for :func:`bp_checks`;
+    returns bool (N,)."""
+    if not len(bps_uv):
+        return np.zeros(0, bool)
+    ev = _bp_evidence(image, gray, bps_uv, clipped, full_scale=full_scale, noise=noise, grey=grey, response=response,
+                      background_px=background_px)
+    return ev.white & ev.significant & ~(ev.specular_colour & ev.tall)
+
+
+def _bp_evidence(image, gray, bps_uv, clipped, *, full_scale, noise, grey, response, background_px) -> Evidence:
+    """:func:`frame_evidence` at the BPs alone (a pixel's ROI each), with ``clipped`` set."""
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
     rc = uv_to_rc(ij).astype(np.int64)  # (u, v) to (row, col): the one place that swaps them
@@ -489,13 +512,8 @@ def bp_checks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, clipped: 
     rois = np.stack([rows, rows + 1, cols, cols + 1], axis=1)
     ev = frame_evidence(image, gray, bps, rois, full_scale=full_scale, noise=noise,
                         background_px=background_px or background_side_px(gray.shape), windowed=True, grey=grey,
-                        panels=False,
-                        response=response)
-    ev = replace(ev, clipped=np.asarray(clipped, bool).reshape(-1))
-    if twins is not None:
-        ev = ev.with_twins(twins)
-    checks = verdict(ev, np.full(n, np.nan), np.zeros(n, bool))
-    return [detail if status == "not_specular" else None for status, detail in checks]
+                        panels=False, response=response)
+    return replace(ev, clipped=np.asarray(clipped, bool).reshape(-1))
 
 
 #: The isovalue at which :data:`NEIGHBOUR_REACH` is stated (the default primary); not a level any check reads.

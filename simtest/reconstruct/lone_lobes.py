@@ -1,0 +1,100 @@
+"""A guide's weak lobe alone in the frame: the last step of a frame under a rig of separate guides.
+
+A white peak of significant height that only the paleness or contrast bar refuses passes where another
+guide's highlight lies where the rig puts it (a rig twin, :data:`~simtest.reconstruct.verify.WEAK_TWIN`).
+On a tilted plane the other guide's specular point often falls outside the frame, and a weak lobe then has
+no twin to show. Where a frame under the rig ends with no accepted highlight, its brightest such peaks (at
+most one per light place: a smooth patch shows no more lobes) get a plane fit over the fits' window grown
+once (:data:`~simtest.decisions.ROI_GROWTH_FACTOR`), as a weak lobe's isophote, cut by its ROI, grows it.
+The fit confirms the lobe where it is ok with its distance, puts one guide's specular point on the peak
+(:data:`~simtest.decisions.PAIR_TOL_PX` plus the BP's wander, or in its bright region) and every other
+guide's outside the frame: the rig's geometry then explains both what the frame shows and what it does not.
+The row becomes ``ok`` with that fit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from simtest.decisions import LIGHT_AWARE_ROI_SCALE, PAIR_TOL_PX, ROI_GROWTH_FACTOR
+from simtest.geometry.lights import LightRig
+from simtest.reconstruct.detect import default_full_scale
+from simtest.reconstruct.detect_pixels import luma, noise_sigma
+from simtest.reconstruct.light_fits import PLANE_ONLY, light_aware_estimates
+from simtest.reconstruct.rig_lobes import _bright_region, _inside
+from simtest.reconstruct.rig_pairs import estimate_wander_px, guide_specular_points
+from simtest.reconstruct.verify import weak_white_peaks
+
+__all__ = ["lone_lobe_rows"]
+
+
+def lone_lobe_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwargs: dict, *, gray=None,
+                   refused=()) -> list:
+    """The estimates with each weak lone lobe its plane fit confirms made ``ok`` (module docstring).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        The frame.
+    estimates : list of SpecularityEstimate
+        After every other step of the rig (:func:`~simtest.reconstruct.rig_centroid.light_aware_with_rig`).
+    camera : CameraModel
+        The camera (``pixel_to_ray``, ``ray_to_pixel``).
+    rig : LightRig or None
+        The scope's lights, camera frame, mm (without separate guides: returned unchanged).
+    fit_kwargs : dict
+        The light-aware fits' arguments (:func:`~simtest.reconstruct.light_fits.fit_arguments`' result).
+    gray : ndarray of shape (H, W), optional
+        The frame's luma where at hand.
+    refused : collection of int
+        Rows not to try (weak twins whose fit did not confirm them).
+
+    Returns
+    -------
+    list of SpecularityEstimate
+        In the order of ``estimates``; a confirmed row ``ok`` with its ``photometric_fit`` alone.
+    """
+    if rig is None or not rig.has_separate_lights or any(e.ok for e in estimates):
+        return estimates
+    rows = [k for k, e in enumerate(estimates) if e.status == "not_specular" and k not in refused
+            and e.bp_px is not None and np.isfinite(e.bp_px).all()]
+    if not rows:
+        return estimates
+    img = np.asarray(image)
+    gray = luma(img) if gray is None else gray
+    weak = weak_white_peaks(img, gray, np.array([estimates[k].bp_px for k in rows], np.float64),
+                            np.array([estimates[k].saturated for k in rows], bool),
+                            full_scale=default_full_scale(img), noise=noise_sigma(gray),
+                            grey=img.ndim == 2, response=fit_kwargs.get("response"))
+    tries = sorted((k for k, w in zip(rows, weak) if w), key=lambda k: -float(estimates[k].bp_intensity))
+    out = list(estimates)
+    wide = {"roi_scale": ROI_GROWTH_FACTOR * fit_kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE)}
+    for k in tries[:rig.light_places]:
+        fit = light_aware_estimates(image, out[k], camera, rig, **(fit_kwargs | PLANE_ONLY | wide))
+        fit = fit.get("photometric_fit")
+        if _confirms(fit, out[k], camera, rig, gray):
+            out[k] = dataclasses.replace(
+                out[k], status="ok", light_aware={"photometric_fit": fit},
+                detail=f"{out[k].detail}; a lone lobe: its plane fit puts its guide's specular point on its BP and "
+                       "every other guide's outside the frame")
+    return out
+
+
+def _confirms(fit, est, camera, rig: LightRig, gray: np.ndarray) -> bool:
+    """Whether ``fit`` (ok, with its distance) puts one guide's specular point on ``est``'s peak (within
+    PAIR_TOL_PX plus its wander of the BP, or in its bright region: :data:`~simtest.decisions.FUSED_LOBE_LEVEL`)
+    and every other guide's outside the frame of ``gray``."""
+    if fit is None or not fit.ok or fit.distance_mm is None:
+        return False
+    pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+    near = np.nan_to_num(np.linalg.norm(pts - np.asarray(est.bp_px, np.float64), axis=1), nan=np.inf)
+    own = near <= PAIR_TOL_PX + estimate_wander_px(est)
+    if (region := _bright_region(gray, est)) is not None:
+        own |= _inside(region, pts)
+    if own.sum() != 1:
+        return False
+    others = pts[~own]
+    inside = (others >= 0).all(axis=1) & (others[:, 0] <= gray.shape[1] - 1) & (others[:, 1] <= gray.shape[0] - 1)
+    return not inside.any()  # (NaN: the plane images no point of that guide; compares False, so outside)

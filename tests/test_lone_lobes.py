@@ -1,0 +1,97 @@
+"""A guide's weak lobe alone in the frame (simtest.reconstruct.lone_lobes): confirmed by a plane fit that puts its
+guide's specular point on it and every other guide's outside the frame, tried only where nothing else is ok."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+import simtest.reconstruct.lone_lobes as lone
+from simtest.geometry.cameras import PinholeCamera
+from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct._pixels import Roi
+from simtest.reconstruct.lightaware import LightAwareEstimate
+from simtest.simulate.offset import specular_point
+from test_pair_wander import _rows_at_truth
+from test_rig_pairs import GUIDES_MM, _normal
+
+RIG = LightRig(tuple(Light(position_mm=tuple(L)) for L in GUIDES_MM))
+
+
+def _peak(uv, shape, sigma_px=6.0, height=60.0, base=100.0):
+    """A luma frame of ``shape`` with one Gaussian lobe at ``uv`` (u, v) px, and the lone row of that peak."""
+    rr, cc = np.mgrid[:shape[0], :shape[1]]
+    gray = base + height * np.exp(-((cc - uv[0]) ** 2 + (rr - uv[1]) ** 2) / (2 * sigma_px**2))
+    bp = np.rint(uv)
+    roi = Roi.around(bp, 4 * sigma_px, shape)
+    return gray, SimpleNamespace(bp_px=bp, bp_intensity=float(gray[int(bp[1]), int(bp[0])]), primary=None, roi=roi)
+
+
+@settings(max_examples=60, deadline=None)
+@given(tilt=st.floats(5.0, 50.0), az=st.floats(0.0, 360.0), h=st.floats(6.0, 40.0), f=st.floats(150.0, 400.0),
+       own=st.integers(0, 1), left=st.floats(30.0, 300.0), right=st.floats(30.0, 300.0),
+       up=st.floats(30.0, 300.0), down=st.floats(30.0, 300.0))
+def test_a_plane_confirms_a_lone_lobe_exactly_where_the_other_guides_point_leaves_the_frame(
+        tilt, az, h, f, own, left, right, up, down):
+    # an exact plane: each guide's specular point (simtest.simulate.offset, an independent derivation); a frame
+    # holding guide `own`'s lobe, its sides drawn about it. The fit confirms the lobe exactly where the other guide's
+    # point lies outside that frame (the image would show its lobe otherwise)
+    N = _normal(tilt, az)
+    X = np.stack([specular_point(N, h, L)[0] for L in GUIDES_MM])
+    cam0 = PinholeCamera(np.array([[f, 0, 0.0], [0, f, 0.0], [0, 0, 1]]))
+    uv = cam0.ray_to_pixel(X)
+    assume(np.isfinite(uv).all() and np.linalg.norm(uv[1] - uv[0]) > 3 * 6.0)  # (apart: one lobe, not fused)
+    u0, v0 = np.floor(uv[own] - [left, up])  # the frame's first pixel, in cam0's pixels
+    cam = PinholeCamera(np.array([[f, 0, -u0], [0, f, -v0], [0, 0, 1]]))
+    shape = (int(up + down), int(left + right))
+    here = uv - [u0, v0]
+    other = here[1 - own]
+    assume(min(abs(other[0] + 0.5), abs(other[0] - shape[1] + 0.5), abs(other[1] + 0.5),
+               abs(other[1] - shape[0] + 0.5)) > 1e-6)  # (not on the edge itself: either side is right there)
+    gray, est = _peak(here[own], shape)
+    fit = LightAwareEstimate("photometric_fit", "ok", normal=N, distance_mm=h)
+    outside = not (0 <= other[0] <= shape[1] - 1 and 0 <= other[1] <= shape[0] - 1)
+    assert lone._confirms(fit, est, cam, RIG, gray) == outside
+    # a fit that is not ok, or without its distance, confirms nothing
+    assert not lone._confirms(LightAwareEstimate("photometric_fit", "depth_not_observable", normal=N), est, cam, RIG,
+                              gray)
+
+
+def test_a_plane_whose_guide_point_misses_the_peak_confirms_nothing():
+    # the same geometry, the peak moved off both guides' points: no guide's point on it, no confirmation
+    N = _normal(30.0, 10.0)
+    X = np.stack([specular_point(N, 15.0, L)[0] for L in GUIDES_MM])
+    cam = PinholeCamera(np.array([[250.0, 0, 120.0], [0, 250.0, 100.0], [0, 0, 1]]))
+    uv = cam.ray_to_pixel(X)
+    fit = LightAwareEstimate("photometric_fit", "ok", normal=N, distance_mm=15.0)
+    inside = [k for k in (0, 1) if 0 <= uv[k, 0] < 240 and 0 <= uv[k, 1] < 200]
+    assert len(inside) == 1  # one guide's point in the 240 x 200 frame
+    gray, est = _peak(uv[inside[0]], (200, 240))
+    assert lone._confirms(fit, est, cam, RIG, gray)
+    gray, est = _peak(uv[inside[0]] + [25.0, 0.0], (200, 240))  # (4 lobe sigmas off its own point)
+    assert not lone._confirms(fit, est, cam, RIG, gray)
+
+
+def test_nothing_is_tried_where_a_row_is_ok_or_without_separate_guides(monkeypatch):
+    # the step is the frame's last resort: with an ok row, or one light place, no fit runs and the rows come back
+    calls = []
+    monkeypatch.setattr(lone, "light_aware_estimates", lambda *a, **k: calls.append(1) or {})
+    gray, est = _peak((50.0, 40.0), (80, 100))
+    rows = [SimpleNamespace(ok=True, status="ok"), SimpleNamespace(ok=False, status="not_specular", bp_px=est.bp_px)]
+    cam = PinholeCamera(np.array([[100.0, 0, 50.0], [0, 100.0, 40.0], [0, 0, 1]]))
+    assert lone.lone_lobe_rows(gray, rows, cam, RIG, {}) is rows
+    one = LightRig((Light((0.0, 0.0, 0.0)),))
+    assert lone.lone_lobe_rows(gray, rows[1:], cam, one, {}) is not None and not calls
+
+
+def test_a_weak_lobe_whose_twin_lies_outside_the_frame_gets_a_light_aware_normal(tmp_path):
+    # The probe's seed 802 frame 1 (a crop): a plane 10 mm away tilted 40 deg, one weak GGX lobe (peak 0.74 of full
+    # scale, unclipped), the other guide's specular point 110 px below the frame. Its chroma is 0.64 of the
+    # tissue's (the paleness bar: 0.6) and no twin shows, so it was not_specular with the BP ray 11.7 deg off. Its
+    # plane fit over the window grown once puts its own guide's point on it and the other's below the frame.
+    # 2 deg: the fit is 0.9 deg off here (a lone broad lobe: no second lobe fixes the depth), the BP ray 11.7 deg
+    rows = _rows_at_truth(tmp_path, "probe802_001", "photometric_fit", 2.0)
+    assert "a lone lobe" in rows[0]["detail"]
