@@ -6,6 +6,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
@@ -16,7 +17,8 @@ from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.lightaware import LightAwareEstimate
 from simtest.simulate.offset import specular_point
 from test_pair_wander import _rows_at_truth
-from test_rig_pairs import GUIDES_MM, _normal
+from simtest.geometry import angle_between_deg
+from test_rig_pairs import GUIDES_MM, _normal, _reconstruct, _write, sensor_plane
 
 RIG = LightRig(tuple(Light(position_mm=tuple(L)) for L in GUIDES_MM))
 
@@ -95,3 +97,54 @@ def test_a_weak_lobe_whose_twin_lies_outside_the_frame_gets_a_light_aware_normal
     # 2 deg: the fit is 0.9 deg off here (a lone broad lobe: no second lobe fixes the depth), the BP ray 11.7 deg
     rows = _rows_at_truth(tmp_path, "probe802_001", "photometric_fit", 2.0)
     assert "a lone lobe" in rows[0]["detail"]
+
+
+def _lone_frame(folder, tilt, depth, spec, seed):
+    """A sensor-like plane tilted along the guides' baseline (tests/test_rig_pairs.py's generator, not the project's
+    renderer), the frame cut between the guides' specular points so that one guide's lobe is alone in it: the
+    command line's row nearest that lobe's specular point (None: no row), the truth's normal and that point; None
+    where the draw leaves that lobe out of the frame or the other's in it."""
+    img, K, n, truth = sensor_plane(tilt, depth, seed, spec=spec, azimuth_deg=0.0, size=480, rows=320, f=200.0)
+    k = int(np.argmin([t[0] for t in truth]))
+    cut = int(np.clip((truth[k][0] + truth[1 - k][0]) / 2, truth[k][0] + 60, 479))
+    if not (0 <= truth[k][0] and 0 <= truth[k][1] < 320 and truth[1 - k][0] >= cut):
+        return None
+    _write(folder, np.ascontiguousarray(img[:, :cut]), K)
+    rows = _reconstruct(folder)
+    near = min(rows, key=lambda s: np.hypot(*(np.asarray(s["bp_px"]) - truth[k]))) if rows else None
+    return near, n, truth[k]
+
+
+@settings(max_examples=4, deadline=None)
+@given(tilt=st.floats(15.0, 40.0), depth=st.floats(8.0, 25.0), spec=st.floats(0.15, 0.6), seed=st.integers(0, 10**6))
+def test_a_lone_lobe_the_step_accepts_on_a_sensor_like_plane_has_its_normal(tmp_path_factory, tilt, depth, spec, seed):
+    # weak lobes (spec 0.15 to 0.6: under the paleness or contrast bar, unclipped), each alone in its frame: a row the
+    # lone-lobe step made ok is never an accurate-looking wrong normal: within 3 sigma plus 0.2 deg of the truth (the
+    # sigma covers the fit's noise; 0.2 deg the plane model's rounding on an 8-bit frame) and on its specular point
+    got = _lone_frame(tmp_path_factory.mktemp("lone"), tilt, depth, spec, seed)
+    assume(got is not None)
+    row, n, at = got
+    if row is not None and "a lone lobe" in row["detail"]:
+        assert row["status"] == "ok" and np.hypot(*(np.asarray(row["bp_px"]) - at)) < 4.0
+        assert angle_between_deg(row["normal"], n) <= 3.0 * row["normal_sigma_deg"] + 0.2, row["detail"]
+
+
+@pytest.mark.parametrize("tilt, depth, spec, seed", [
+    (22.579870732291123, 15.709464121171075, 0.21031876376122413, 383311),  # pale: chroma 0.77 of the tissue's
+    (33.119748519338344, 17.200856544306383, 0.27460104182041684, 961657)])  # low: 0.57 of the room
+def test_weak_lone_lobes_on_sensor_like_planes_get_light_aware_normals(tmp_path, tilt, depth, spec, seed):
+    # two draws of the property above that the step must accept (each not_specular without it); 0.2 deg: four
+    # times either fit's error (0.04 and 0.06 deg)
+    row, n, at = _lone_frame(tmp_path, tilt, depth, spec, seed)
+    assert row["status"] == "ok" and "a lone lobe" in row["detail"] and row["normal_from"] == "photometric_fit"
+    assert angle_between_deg(row["normal"], n) < 0.2
+
+
+@pytest.mark.xfail(strict=True, reason="a single lobe fitted as both guides' lobes fused at 247 mm, beyond the "
+                   "scope's depth of field (PAIR_DEPTH_MAX_MM), 13 deg off with a 0.02 deg sigma: found by the property "
+                   "test above at 9cf34b1 and 93256eb alike; not this step's")
+def test_a_single_lobe_is_not_fitted_as_the_guides_lobes_fused_far_away(tmp_path):
+    # the other guide's lobe cut off the frame, tissue 9 mm away: the ok row's plane fit puts both guides' specular
+    # points 3.7 px apart inside the one lobe at 247 mm (truth: 97 px apart at 9 mm) and splits it into two rows
+    row, n, _ = _lone_frame(tmp_path, 15.0, 9.0, 0.5, 0)
+    assert row["status"] != "ok" or angle_between_deg(row["normal"], n) <= 3.0 * row["normal_sigma_deg"] + 0.2
