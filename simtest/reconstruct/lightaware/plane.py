@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from simtest.decisions import SIGNIFICANCE_MIN, TWO_CHANNEL_Z
+from simtest.decisions import PAIR_DEPTH_MAX_MM, SIGNIFICANCE_MIN, TWO_CHANNEL_Z
 from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
@@ -182,7 +182,8 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
         (``_misfit``; not with the diffuse column, censoring or GGX) or the residual holds a curved
         patch's pattern (:func:`~simtest.reconstruct.lightaware.solve._curvature_score`). A pattern
         that moves the normal by no more than its sigma keeps the fit, its sigma grown by
-        ``curvature_shift_deg``.
+        ``curvature_shift_deg``. ``not_converged`` where, under separate guides, the fitted plane lies
+        beyond :data:`~simtest.decisions.PAIR_DEPTH_MAX_MM` (their lobes coincide: no parallax).
 
     Raises
     ------
@@ -301,6 +302,8 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings, colour=Non
     with np.errstate(over="ignore"):  # a fit run off to an infinite h or roughness: implausible below
         h_hat, rough_hat = float(np.exp(x[2])), m.phong_n(x[3])
     bad = _implausible(h_hat, h0, rough_hat, shaded=s.diffuse)
+    if not bad and rig.has_separate_lights and h_hat > PAIR_DEPTH_MAX_MM:  # (the guides' lobes coincide there)
+        bad = f"fitted distance {h_hat:.4g} mm beyond the scope's depth of field ({PAIR_DEPTH_MAX_MM:g} mm)"
     if bad:
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev, projection=how)
     if np.any(n_hat @ m.rig_arr[0].T + h_hat <= 0):
