@@ -347,7 +347,7 @@ PAIR_DEPTH_MIN_MM = decision(
 PAIR_DEPTH_MAX_MM = decision(
     "PAIR_DEPTH_MAX_MM", 100.0, "mm along the BP's ray",
     "Farthest depth (the data sheets' far end of the depth of field; beyond it the other guide's "
-    "highlight lies within the candidate's own lobe). Under separate guides a plane fit whose distance "
+    "highlight lies within the candidate's own lobe). Under separate guides an ok plane fit whose distance "
     "lies beyond it is not_converged: their lobes coincide there, so no parallax holds its depth.",
     basis="physics", stage=_V)
 PAIR_TOL_PX = decision(

@@ -182,7 +182,7 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
         (``_misfit``; not with the diffuse column, censoring or GGX) or the residual holds a curved
         patch's pattern (:func:`~simtest.reconstruct.lightaware.solve._curvature_score`). A pattern
         that moves the normal by no more than its sigma keeps the fit, its sigma grown by
-        ``curvature_shift_deg``. ``not_converged`` where, under separate guides, the fitted plane lies
+        ``curvature_shift_deg``. ``not_converged`` where, under separate guides, an ok fit's plane lies
         beyond :data:`~simtest.decisions.PAIR_DEPTH_MAX_MM` (their lobes coincide: no parallax).
 
     Raises
@@ -210,9 +210,21 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
            Comput. Graph. 11(2), 1977. https://doi.org/10.1145/965141.563893
     """
     s = FitSettings(**options) if settings is None else replace(settings, **options)
-    if s.n_start_depths is None:
-        return _fit_projections(values, origin_uv, bp_uv, camera, rig, s)
-    return _fit_lobes(values, origin_uv, bp_uv, camera, rig, s)
+    fit = (_fit_projections if s.n_start_depths is None else _fit_lobes)(values, origin_uv, bp_uv, camera, rig, s)
+    return _in_depth_of_field(fit, rig)
+
+
+def _in_depth_of_field(est: LightAwareEstimate, rig: LightRig) -> LightAwareEstimate:
+    """``est``, or ``not_converged`` where under separate guides it is ok with its plane beyond
+    :data:`~simtest.decisions.PAIR_DEPTH_MAX_MM`: their lobes coincide there, no parallax holds the depth, and
+    a lobe fitted there as every guide's at once is no endoscope's plane. Applied to the final fit only (the
+    fallbacks may start from a far plane); a ``depth_not_observable`` fit stays one (the pair's refit reads it)."""
+    h = est.fitted_distance_mm
+    if not (rig.has_separate_lights and est.ok and h is not None and h > PAIR_DEPTH_MAX_MM):
+        return est
+    why = f"fitted distance {h:.4g} mm beyond the scope's depth of field ({PAIR_DEPTH_MAX_MM:g} mm)"
+    return LightAwareEstimate(est.estimator, "not_converged", f"{why}: {est.status}, {est.detail}",
+                              n_evaluations=est.n_evaluations, projection=est.projection)
 
 
 def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
@@ -302,8 +314,6 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings, colour=Non
     with np.errstate(over="ignore"):  # a fit run off to an infinite h or roughness: implausible below
         h_hat, rough_hat = float(np.exp(x[2])), m.phong_n(x[3])
     bad = _implausible(h_hat, h0, rough_hat, shaded=s.diffuse)
-    if not bad and rig.has_separate_lights and h_hat > PAIR_DEPTH_MAX_MM:  # (the guides' lobes coincide there)
-        bad = f"fitted distance {h_hat:.4g} mm beyond the scope's depth of field ({PAIR_DEPTH_MAX_MM:g} mm)"
     if bad:
         return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev, projection=how)
     if np.any(n_hat @ m.rig_arr[0].T + h_hat <= 0):
