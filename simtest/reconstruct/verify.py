@@ -153,11 +153,18 @@ class Evidence:
         (:data:`WEAK_TWIN`)."""
         return np.zeros(len(self.height), bool) if self.twin is None else self.tall & ~replace(self, twin=None).tall
 
+    @property
+    def weak_white(self) -> np.ndarray:
+        """White peaks of significant height that the paleness or contrast bar alone refuses: those a rig twin
+        lets pass (:meth:`with_twins`)."""
+        return self.white & self.significant & ~(
+            _specular_colour(self.chroma_peak, self.chroma_tissue, self.white_share) & self.tall)
+
     def with_twins(self, twins) -> Evidence:
         """This evidence with ``twin`` set where ``twins(pool, which)`` (bool (N,)) finds one for the peaks refused
-        for paleness or contrast alone (``which``), among the white peaks of significant height (``pool``)."""
-        pool = self.white & self.significant
-        which = pool & ~(_specular_colour(self.chroma_peak, self.chroma_tissue, self.white_share) & self.tall)
+        for paleness or contrast alone (``which``: :attr:`weak_white`), among the white peaks of significant
+        height (``pool``)."""
+        pool, which = self.white & self.significant, self.weak_white
         return replace(self, twin=twins(pool, which) if which.any() else np.zeros(len(pool), bool))
 
     @property
@@ -494,13 +501,12 @@ def weak_white_peaks(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, cl
                      full_scale: float, noise: float, grey: bool = False, response=None,
                      background_px: int | None = None) -> np.ndarray:
     """Which BPs are white peaks of significant height that the paleness or contrast bar alone refuses: the
-    peaks a rig twin would let pass (:meth:`Evidence.with_twins`' ``which``). Arguments as for :func:`bp_checks`;
+    peaks a rig twin would let pass (:attr:`Evidence.weak_white`). Arguments as for :func:`bp_checks`;
     returns bool (N,)."""
     if not len(bps_uv):
         return np.zeros(0, bool)
-    ev = _bp_evidence(image, gray, bps_uv, clipped, full_scale=full_scale, noise=noise, grey=grey, response=response,
-                      background_px=background_px)
-    return ev.white & ev.significant & ~(ev.specular_colour & ev.tall)
+    return _bp_evidence(image, gray, bps_uv, clipped, full_scale=full_scale, noise=noise, grey=grey,
+                        response=response, background_px=background_px).weak_white
 
 
 def _bp_evidence(image, gray, bps_uv, clipped, *, full_scale, noise, grey, response, background_px) -> Evidence:
