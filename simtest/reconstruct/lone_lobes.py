@@ -9,7 +9,9 @@ once (:data:`~simtest.decisions.ROI_GROWTH_FACTOR`), as a weak lobe's isophote, 
 The fit confirms the lobe where it is ok with its distance, puts one guide's specular point on the peak
 (:data:`~simtest.decisions.PAIR_TOL_PX` plus the BP's wander, or in its bright region) and every other
 guide's outside the frame: the rig's geometry then explains both what the frame shows and what it does not.
-The row becomes ``ok`` with that fit.
+One lobe alone hardly tells which guide lit it: the swapped hypothesis (another guide lit the BP, at any depth
+of the depth of field) must be refuted by the image too, no lobe rising where it puts the fit's own guide's
+(:func:`_swap_seen`). The row becomes ``ok`` with that fit.
 """
 
 from __future__ import annotations
@@ -18,13 +20,16 @@ import dataclasses
 
 import numpy as np
 
-from simtest.decisions import LIGHT_AWARE_ROI_SCALE, PAIR_TOL_PX, ROI_GROWTH_FACTOR
+from simtest.decisions import GUIDE_SEEN_REL, LIGHT_AWARE_ROI_SCALE, PAIR_TOL_PX, ROI_GROWTH_FACTOR
+from simtest.geometry.angles import unit
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct.detect import default_full_scale
 from simtest.reconstruct.detect_pixels import luma, noise_sigma
-from simtest.reconstruct.light_fits import PLANE_ONLY, light_aware_estimates
+from simtest.reconstruct.light_fits import (PLANE_ONLY, _fit_intensities, _in_frame, _reach, _rise,
+                                            light_aware_estimates)
+from simtest.reconstruct.lightaware.model import plane_rig_intensity
 from simtest.reconstruct.rig_lobes import _bright_region, _inside
-from simtest.reconstruct.rig_pairs import estimate_wander_px, guide_specular_points
+from simtest.reconstruct.rig_pairs import _DEPTHS, _imaged_curves, estimate_wander_px, guide_specular_points
 from simtest.reconstruct.verify import weak_white_peaks
 
 __all__ = ["lone_lobe_rows"]
@@ -70,15 +75,17 @@ def lone_lobe_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwa
                             grey=img.ndim == 2, response=fit_kwargs.get("response"))
     tries = sorted((k for k, w in zip(rows, weak) if w), key=lambda k: -float(estimates[k].bp_intensity))
     out = list(estimates)
+    values, clip = _fit_intensities(img, fit_kwargs.get("response"), fit_kwargs.get("linear"),
+                                    fit_kwargs.get("saturation_level"))[:2]
     wide = {"roi_scale": ROI_GROWTH_FACTOR * fit_kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE)}
     for k in tries[:rig.light_places]:
         fit = light_aware_estimates(image, out[k], camera, rig, **(fit_kwargs | PLANE_ONLY | wide))
         fit = fit.get("photometric_fit")
-        if _confirms(fit, out[k], camera, rig, gray):
+        if _confirms(fit, out[k], camera, rig, gray) and not _swap_seen(fit, out[k], camera, rig, values, clip):
             out[k] = dataclasses.replace(
                 out[k], status="ok", light_aware={"photometric_fit": fit},
                 detail=f"{out[k].detail}; a lone lobe: its plane fit puts its guide's specular point on its BP and "
-                       "every other guide's outside the frame")
+                       "every other guide's outside the frame, and no other guide lit it")
     return out
 
 
@@ -98,3 +105,34 @@ def _confirms(fit, est, camera, rig: LightRig, gray: np.ndarray) -> bool:
     others = pts[~own]
     inside = (others >= 0).all(axis=1) & (others[:, 0] <= gray.shape[1] - 1) & (others[:, 1] <= gray.shape[0] - 1)
     return not inside.any()  # (NaN: the plane images no point of that guide; compares False, so outside)
+
+
+def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> bool:
+    """Whether the image holds up the swapped hypothesis of a lone lobe's fit: another guide ``i`` lit the BP (the
+    plane of ``i``'s bisector at a depth of the rig's curves, :mod:`~simtest.reconstruct.rig_pairs`), and the fit's
+    own guide or another shows a lobe predicted at least GUIDE_SEEN_REL as high (the fit's roughness) beyond the own
+    lobe's tails (LIGHT_AWARE_ROI_SCALE times its half-size, plus PAIR_TOL_PX): measured as ``light_fits._unseen_guide``
+    measures a fit's own prediction, on the values the fits read (``values``, clip level ``clip``, None without)."""
+    bp = np.asarray(est.bp_px, np.float64)
+    pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
+    own = int(np.nanargmin(np.linalg.norm(np.where(np.isfinite(pts), pts, np.inf) - bp, axis=1)))
+    ray = unit(camera.pixel_to_ray(bp[None])[0])
+    L = np.asarray(rig.positions, np.float64)
+    ring = _reach(est, 1.0)
+    height = _rise(values, bp, ring)[0]
+    for i, j, uv in _imaged_curves(camera, L, ray, _DEPTHS):
+        if i == own:
+            continue
+        use = np.flatnonzero(_in_frame(uv, values.shape)
+                             & (np.abs(uv - bp).max(axis=1) > LIGHT_AWARE_ROI_SCALE * ring + PAIR_TOL_PX))
+        for d, p in zip(_DEPTHS[use], uv[use]):
+            X = d * ray
+            n = unit(unit(-X) + unit(L[i] - X))
+            spec = plane_rig_intensity(unit(camera.pixel_to_ray(np.stack([bp, p])), -1), n, float(-n @ X), rig,
+                                       fit.roughness)
+            if not spec[0] > 0 or spec[1] / spec[0] < GUIDE_SEEN_REL:
+                continue
+            rise, peak = _rise(values, p, ring)
+            if rise >= GUIDE_SEEN_REL * spec[1] / spec[0] * height or (clip is not None and peak >= clip):
+                return True
+    return False
