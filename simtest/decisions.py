@@ -373,8 +373,9 @@ GUIDE_SEEN_REL = decision(
     "A plane fit predicts every guide's specular point and how high its lobe rises there relative to "
     "the fitted highlight's (the rig's falloff and profile, the plane's geometry). Where another "
     "guide's lobe is predicted in the frame at least this share as high "
-    "as the fitted one (at their specular points), the image must rise there at least this share of "
-    "the fitted lobe's height, both measured alike (the peak within PAIR_TOL_PX of the point above "
+    "as the fitted one (at their specular points), or less high where this share of its predicted rise "
+    "stands SIGNIFICANCE_MIN noise sigmas above the noise about its point, the image must rise there at "
+    "least this share of its predicted rise, both measured alike (the peak within PAIR_TOL_PX of the point above "
     "the median of a ring at the highlight's half-size); else the fit gave the lobe to the wrong guide (one lobe "
     "alone hardly tells which guide lit it). The share leaves room for the albedo, shading and "
     "Fresnel differences between the two points, which the plane model leaves out.",

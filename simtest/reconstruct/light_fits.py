@@ -17,7 +17,8 @@ from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest._workers import worker_pool
 from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, CLIP_NOISE_FROM_REL, GUIDE_SEEN_REL, ISOCURVE_ISOVALUES,
-                               LIGHT_AWARE_ROI_SCALE, LOBE_EDGE_REL, LOBE_ROI_MISMATCH, PAIR_TOL_PX, SIGMA_MARGIN)
+                               LIGHT_AWARE_ROI_SCALE, LOBE_EDGE_REL, LOBE_ROI_MISMATCH, PAIR_TOL_PX, SIGMA_MARGIN,
+                               SIGNIFICANCE_MIN)
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi, border_ring
@@ -220,11 +221,13 @@ def _roi_union(*rois: Roi) -> Roi:
 
 def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, camera, rig) -> str:
     """Why the image refutes a plane fit (:data:`~simtest.decisions.GUIDE_SEEN_REL`): another guide's lobe
-    predicted in the frame at least that share as high as the fit's own (at their specular points), where
-    the image rises less than that share of the own lobe's measured height and reaches no clipped pixel
-    (``clip``: the values' clip level, None without); "" where none. A lobe's rise is measured alike at
-    either point (:func:`_rise`, the tail at the detected highlight's half-size); the own lobe is the
-    guide whose point lies nearest the BP."""
+    predicted in the frame at least that share as high as the fit's own (at their specular points), or less high
+    where that share of its predicted rise stands :data:`~simtest.decisions.SIGNIFICANCE_MIN` noise sigmas above
+    the noise about its point, where the image rises less than that share of its predicted rise (the own lobe's
+    measured height times the prediction's ratio) and reaches no clipped pixel (``clip``: the values' clip level,
+    None without); "" where none. A lobe's rise is measured alike at either point (:func:`_rise`, the tail at the
+    detected highlight's half-size; a clipped top's a lower bound); the own lobe is the guide whose point lies
+    nearest the BP."""
     if len(rig.positions) < 2:
         return ""
     pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
@@ -244,7 +247,8 @@ def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, camera, 
     height = _rise(gray, pts[own], ring)[0]  # (a clipped top: a lower bound)
     for j, s in zip(others, spec[1:]):
         rel = float(s / spec[0])
-        if rel < GUIDE_SEEN_REL:
+        if rel < GUIDE_SEEN_REL and not (GUIDE_SEEN_REL * rel * height >= SIGNIFICANCE_MIN * noise_sigma(
+                gray[Roi.around(pts[j], ring, gray.shape).slices])):
             continue
         rise, peak = _rise(gray, pts[j], ring)
         if rise < GUIDE_SEEN_REL * rel * height and not (clip is not None and peak >= clip):
