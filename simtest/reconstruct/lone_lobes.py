@@ -12,6 +12,13 @@ guide's outside the frame: the rig's geometry then explains both what the frame 
 One lobe alone hardly tells which guide lit it: the swapped hypothesis (another guide lit the BP, at any depth
 of the depth of field) must be refuted by the image too, no lobe rising where it puts the fit's own guide's
 (:func:`_swap_seen`). The row becomes ``ok`` with that fit.
+
+The same two hypotheses meet where the frame's edge cuts a bright region that the rig's step split into two
+guides' fused lobes (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`): the joint fit may have settled
+on a far plane whose guides' points both fall in the region, where one guide's lobe alone, its twin beyond the
+edge, explains the region better. :func:`lone_rival` refits the region from the plane fit's retry starts and
+returns the lone-lobe fit (as :func:`_confirms` reads one) of lower residual than the joint fit's: the same
+model's better minimum, no new decision number.
 """
 
 from __future__ import annotations
@@ -28,11 +35,12 @@ from simtest.reconstruct.detect_pixels import luma, noise_sigma
 from simtest.reconstruct.light_fits import (PLANE_ONLY, _fit_intensities, _in_frame, _reach, _rise,
                                             light_aware_estimates)
 from simtest.reconstruct.lightaware.model import plane_rig_intensity
+from simtest.reconstruct.lightaware.plane import RETRY_START_DEPTHS, FitSettings
 from simtest.reconstruct.rig_lobes import _bright_region, _inside
 from simtest.reconstruct.rig_pairs import _DEPTHS, _imaged_curves, estimate_wander_px, guide_specular_points
 from simtest.reconstruct.verify import weak_white_peaks
 
-__all__ = ["lone_lobe_rows"]
+__all__ = ["lone_lobe_rows", "lone_rival"]
 
 
 def lone_lobe_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwargs: dict, *, gray=None,
@@ -87,6 +95,51 @@ def lone_lobe_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwa
                 detail=f"{out[k].detail}; a lone lobe: its plane fit puts its guide's specular point on its BP and "
                        "every other guide's outside the frame, and no other guide lit it")
     return out
+
+
+def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: np.ndarray):
+    """A lone-lobe plane fit of ``est``'s region that fits it better than the joint fit ``fit``, or None.
+
+    The fused split of a region the frame cuts rests on ``fit`` putting two guides' specular points in it. The
+    region is refitted (plane only, the fits' ROI) from the starts of the plane fit's retry
+    (:data:`~simtest.reconstruct.lightaware.plane.RETRY_START_DEPTHS` depths, 1/8 to 8 times the nominal one,
+    each guide's bisector there); a refit counts where it is ok with its distance, puts one guide's specular point
+    on the peak and every other guide's outside the frame (:func:`_confirms`), was fitted on the same projection
+    and leaves a lower residual RMS than ``fit``: the same model's better minimum.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        The frame.
+    est : SpecularityEstimate
+        The split candidate (its status ``touches_border`` or ``contour_cut``).
+    fit : LightAwareEstimate
+        Its joint photometric fit.
+    camera : CameraModel
+    rig : LightRig
+        Of separate guides.
+    fit_kwargs : dict
+        The light-aware fits' arguments (:func:`~simtest.reconstruct.light_fits.fit_arguments`' result).
+    gray : ndarray of shape (H, W)
+        The frame's luma.
+
+    Returns
+    -------
+    LightAwareEstimate or None
+        The rival of least residual RMS.
+    """
+    if fit is None or not fit.ok or fit.residual_rms is None:
+        return None
+    best = None
+    for depth in FitSettings.nominal_depth_mm * np.geomspace(1 / 8, 8, RETRY_START_DEPTHS):
+        alt = light_aware_estimates(image, est, camera, rig,
+                                    **(fit_kwargs | PLANE_ONLY | {"nominal_depth_mm": float(depth)}))
+        alt = alt.get("photometric_fit")
+        if (alt is not None and alt.projection == fit.projection and alt.residual_rms is not None
+                and alt.residual_rms < (fit.residual_rms if best is None else best.residual_rms)
+                and _confirms(alt, est, camera, rig, gray)):
+            best = alt
+    return best
 
 
 def _confirms(fit, est, camera, rig: LightRig, gray: np.ndarray) -> bool:

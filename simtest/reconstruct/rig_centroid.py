@@ -35,7 +35,7 @@ from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_light_aware
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector, reflection_offset_deg
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
-from simtest.reconstruct.lone_lobes import lone_lobe_rows
+from simtest.reconstruct.lone_lobes import lone_lobe_rows, lone_rival
 from simtest.reconstruct.verify import WEAK_TWIN, specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
 from simtest.reconstruct.rig_pairs import estimate_wander_px
@@ -214,7 +214,8 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
                                       among={i for i, w in zip(maybe, white) if w or estimates[i].saturated})
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
                               plane_only=split, weak=weak_rows, **kwargs)
-    split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray, weak=weak_rows)
+    split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray, weak=weak_rows,
+                                   rival=lambda est, fit: lone_rival(image, est, fit, camera, rig, kwargs, gray))
     out = rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
     out = curved_lobe_rows(image, out, camera, rig, kwargs, gray=gray)
     out = shared_plane_rows([_obeys_reflection(e, camera, rig) for e in out], camera, rig)

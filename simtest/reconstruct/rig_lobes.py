@@ -277,6 +277,10 @@ def _dip_needed(gray: np.ndarray, est, camera, rig, weak: bool = False) -> bool:
                                                     and not _along_the_rig(gray, est, camera, rig, True))
 
 
+#: The statuses of a candidate whose region or isophote the frame's edge cuts.
+_CUT = ("touches_border", "contour_cut")
+
+
 def _rows(est, camera, rig, gray, region, pair, others: np.ndarray, weak: bool = False) -> list | None:
     """The rows of one fitted candidate's fused lobes (module docstring), or None; ``weak``: a weak twin's."""
     fit = (est.light_aware or {}).get("photometric_fit")
@@ -297,7 +301,7 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray, weak: bool =
     if _dip_needed(gray, est, camera, rig, weak) and not (len(pts) == 2 and _dips_between(gray, region, pts)):
         return None  # such a region is two guides' lobes only where its luma dips between their points
     k = np.flatnonzero(_inside(region, pts))
-    cut = est.status in ("touches_border", "contour_cut") and _plane(fit)
+    cut = est.status in _CUT and _plane(fit)
     if len(k) < (1 if cut else 2):
         return None
     p = pts[k]
@@ -463,7 +467,7 @@ def _one_split_per_pair(parts: list, splits: list) -> None:
                 parts[k] = [est]
 
 
-def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None, weak=()) -> list:
+def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None, weak=(), rival=None) -> list:
     """The estimates with each candidate of fused guide lobes replaced by one row per guide.
 
     Parameters
@@ -482,6 +486,10 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None,
         The frame's luma when at hand.
     weak : collection of int
         The candidates the height check passed for their rig twin alone (module docstring, "Rule").
+    rival : callable, optional
+        ``rival(est, fit)``: a lone-lobe fit of a region the frame cuts that fits it better than its joint fit
+        ``fit`` (:func:`~simtest.reconstruct.lone_lobes.lone_rival`), or None; such a region is that guide's lobe,
+        its row from the rival (the cut lobe's rule), not a split.
 
     Returns
     -------
@@ -507,6 +515,10 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None,
             # the clipped tops' pair, once for both (the rig's pair of one guide is none)
             pair = _tops_pair(gray, region, camera, rig) if est.saturated and region is not None else None
             rows = _rows(est, camera, rig, gray, region, pair, others, i in weak)
+            if rival is not None and rows is not None and len(rows) > 1 and est.status in _CUT and (
+                    lone := rival(est, est.light_aware["photometric_fit"])) is not None:
+                est = dataclasses.replace(est, light_aware=dict(est.light_aware, photometric_fit=lone))
+                rows = _rows(est, camera, rig, gray, region, pair, others, i in weak)
             if pair is None and rows is None and est.saturated and region is not None:
                 pair = _tops_pair(gray, region, camera, rig, at_clip=True)  # (no split: the tops at the clip)
             rows = _pair_rows(est, camera, rig, region, pair, others, rows) or rows
