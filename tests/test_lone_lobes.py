@@ -217,18 +217,22 @@ def test_a_single_lobe_is_not_fitted_as_the_guides_lobes_fused_far_away(tmp_path
     assert "fused" not in row["detail"]
 
 
-def test_a_lobe_the_frames_edge_cuts_is_one_guides_where_that_fits_better_than_two_fused(tmp_path):
-    # The probe's seed 813 frame 14 (a tuning frame): a plane 14.5 mm away tilted 36 deg, guide 2's clipped Blinn
-    # lobe cut by the top edge, guide 1's specular point 89 px above the frame. The joint plane fit settled on a plane
-    # at 65 mm that puts both guides' points 23 px apart in the lobe, and the split gave two rows 6.3 deg off with a
-    # 0.2 deg sigma. Refitted from the plane fit's retry starts, the lobe as guide 2's alone (guide 1's point above
-    # the frame) leaves 0.55 of that residual: one row, at guide 2's specular point, from that fit
-    shutil.copy(DATA / "probe813_014.jpg", tmp_path / "frame.jpg")
-    shutil.copy(DATA / "probe813_014_camera.json", tmp_path / "camera.json")
-    truth = json.loads((DATA / "probe813_014_truth.json").read_text())["highlights"]
+@pytest.mark.parametrize("name", ["probe813_014", "probe817_015"])
+def test_a_lobe_the_frames_edge_cuts_is_one_guides_where_that_fits_better_than_two_fused(tmp_path, name):
+    # Two tuning frames of the probe (seeds 813 and 817): planes 14.5 and 13.3 mm away tilted 36 and 40 deg, one
+    # guide's clipped lobe (Blinn; GGX) cut by the top edge, the other guide's specular point 89 and 108 px above the
+    # frame. The joint plane fit settled on a plane at 65 and 56 mm that puts both guides' points 23 and 26 px apart
+    # in the lobe, and the split gave two rows 6.3 and 7.3 deg off with a 0.2 deg sigma. Refitted from the plane
+    # fit's retry starts with the same lobe and projection, the lobe as one guide's alone (the other's point above
+    # the frame) leaves 0.55 and 0.95 of that residual: one row, at that guide's specular point, from that fit
+    frame = next(DATA.glob(f"{name}.*g"))
+    shutil.copy(frame, tmp_path / f"frame{frame.suffix}")
+    shutil.copy(DATA / f"{name}_camera.json", tmp_path / "camera.json")
+    truth = json.loads((DATA / f"{name}_truth.json").read_text())["highlights"]
     seen = [h for h in truth if h["inside"]]
-    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "frame.jpg"), "-k", str(tmp_path / "camera.json"),
-                                   "-o", str(tmp_path / "out"), "--no-overlay", "--workers", "1"])
+    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / f"frame{frame.suffix}"), "-k",
+                                   str(tmp_path / "camera.json"), "-o", str(tmp_path / "out"), "--no-overlay",
+                                   "--workers", "1"])
     assert res.exit_code == 0, res.output
     rows = [s for s in json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
             if s["status"] == "ok" and s["normal_from"] != "bp_ray"]
@@ -244,7 +248,7 @@ def test_a_rival_must_be_a_confirmed_lone_lobe_of_lower_residual_on_the_same_pro
     # lone_rival's rule on canned refits: of the retry starts' fits, the confirmed lone lobes (lone._confirms) on the
     # joint fit's projection whose residual RMS is below the joint fit's, the least; None where there is none
     def est(rms, projection="least_fluctuation", lone_=True):
-        return SimpleNamespace(ok=True, residual_rms=rms, projection=projection, lone=lone_)
+        return SimpleNamespace(ok=True, residual_rms=rms, projection=projection, lone=lone_, lobe="ggx")
 
     joint = est(0.02)
     for refits, want in (([est(0.03), est(0.011), est(0.015)], 1),  # the least of those below
@@ -252,9 +256,13 @@ def test_a_rival_must_be_a_confirmed_lone_lobe_of_lower_residual_on_the_same_pro
                          ([est(0.01, lone_=False), est(0.02)], None),  # the joint plane again, or not below
                          ([est(0.019), est(0.005, lone_=False)], 0)):
         it = iter(refits)  # (the starts beyond: a far plane's misfit)
-        monkeypatch.setattr(lone, "light_aware_estimates",
-                            lambda *a, **k: {"photometric_fit": next(it, est(1.0, lone_=False))})
+        asked = []  # each refit's settings: the joint fit's lobe, the retry's depths
+        monkeypatch.setattr(lone, "light_aware_estimates", lambda *a, **k: asked.append(k) or {
+            "photometric_fit": next(it, est(1.0, lone_=False))})
         monkeypatch.setattr(lone, "_confirms", lambda fit, *a: fit.lone)
         got = lone.lone_rival(None, None, joint, None, RIG, {}, None)
         assert got is (None if want is None else refits[want])
+        assert {k["lobe"] for k in asked} == {"ggx"}
+        np.testing.assert_allclose([k["nominal_depth_mm"] for k in asked], lone.FitSettings.nominal_depth_mm
+                                   * np.geomspace(1 / 8, 8, lone.RETRY_START_DEPTHS))
     assert lone.lone_rival(None, None, est(None), None, RIG, {}, None) is None  # no residual: nothing to beat

@@ -233,7 +233,7 @@ def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, camera, 
     pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
     inside = _in_frame(pts, gray.shape)
     bp = np.asarray(est.bp_px, np.float64)
-    own = int(np.nanargmin(np.linalg.norm(np.where(np.isfinite(pts), pts, np.inf) - bp, axis=1)))
+    own = nearest_guide(pts, bp)
     if not inside[own]:
         return ""
     others = np.flatnonzero(inside & (np.arange(len(pts)) != own))
@@ -255,6 +255,13 @@ def _unseen_guide(fit: LightAwareEstimate, est, gray: np.ndarray, clip, camera, 
             return (f"its plane puts guide {j + 1}'s specular point at ({pts[j, 0]:.0f}, {pts[j, 1]:.0f}) px, its "
                     f"lobe {rel:.2g} times as high as this one's, where the image rises {rise:.3g} of {height:.3g}")
     return ""
+
+
+def nearest_guide(pts: np.ndarray, bp_uv) -> int:
+    """The guide whose specular point of ``pts`` (J, 2) (u, v) px, NaN where its plane images none, lies nearest
+    the BP ``bp_uv``: the guide that lit the highlight, as a plane fit reads it."""
+    gaps = np.linalg.norm(np.where(np.isfinite(pts), pts, np.inf) - np.asarray(bp_uv, np.float64), axis=1)
+    return int(np.nanargmin(gaps))
 
 
 def _in_frame(pts: np.ndarray, shape) -> np.ndarray:

@@ -13,12 +13,9 @@ One lobe alone hardly tells which guide lit it: the swapped hypothesis (another 
 of the depth of field) must be refuted by the image too, no lobe rising where it puts the fit's own guide's
 (:func:`_swap_seen`). The row becomes ``ok`` with that fit.
 
-The same two hypotheses meet where the frame's edge cuts a bright region that the rig's step split into two
-guides' fused lobes (:func:`~simtest.reconstruct.rig_lobes.split_fused_lobes`): the joint fit may have settled
-on a far plane whose guides' points both fall in the region, where one guide's lobe alone, its twin beyond the
-edge, explains the region better. :func:`lone_rival` refits the region from the plane fit's retry starts and
-returns the lone-lobe fit (as :func:`_confirms` reads one) of lower residual than the joint fit's: the same
-model's better minimum, no new decision number.
+Where the frame's edge cuts a region split into two guides' fused lobes, the joint fit may have settled on a far
+plane that puts both points in it while one guide's lobe alone, its twin beyond the edge, fits better
+(:func:`lone_rival`; :func:`~simtest.reconstruct.rig_lobes.split_fused_lobes` then gives that guide's row).
 """
 
 from __future__ import annotations
@@ -33,7 +30,7 @@ from simtest.geometry.lights import LightRig
 from simtest.reconstruct.detect import default_full_scale
 from simtest.reconstruct.detect_pixels import luma, noise_sigma
 from simtest.reconstruct.light_fits import (PLANE_ONLY, _fit_intensities, _in_frame, _reach, _rise,
-                                            light_aware_estimates)
+                                            light_aware_estimates, nearest_guide)
 from simtest.reconstruct.lightaware.model import plane_rig_intensity
 from simtest.reconstruct.lightaware.plane import RETRY_START_DEPTHS, FitSettings
 from simtest.reconstruct.rig_lobes import _bright_region, _inside
@@ -98,42 +95,21 @@ def lone_lobe_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwa
 
 
 def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: np.ndarray):
-    """A lone-lobe plane fit of ``est``'s region that fits it better than the joint fit ``fit``, or None.
+    """A lone-lobe plane fit of ``est``'s region that fits it better than its joint fit ``fit``, or None.
 
-    The fused split of a region the frame cuts rests on ``fit`` putting two guides' specular points in it. The
-    region is refitted (plane only, the fits' ROI) from the starts of the plane fit's retry
-    (:data:`~simtest.reconstruct.lightaware.plane.RETRY_START_DEPTHS` depths, 1/8 to 8 times the nominal one,
-    each guide's bisector there); a refit counts where it is ok with its distance, puts one guide's specular point
-    on the peak and every other guide's outside the frame (:func:`_confirms`), was fitted on the same projection
-    and leaves a lower residual RMS than ``fit``: the same model's better minimum.
-
-    Parameters
-    ----------
-    image : ndarray of shape (H, W) or (H, W, 3)
-        The frame.
-    est : SpecularityEstimate
-        The split candidate (its status ``touches_border`` or ``contour_cut``).
-    fit : LightAwareEstimate
-        Its joint photometric fit.
-    camera : CameraModel
-    rig : LightRig
-        Of separate guides.
-    fit_kwargs : dict
-        The light-aware fits' arguments (:func:`~simtest.reconstruct.light_fits.fit_arguments`' result).
-    gray : ndarray of shape (H, W)
-        The frame's luma.
-
-    Returns
-    -------
-    LightAwareEstimate or None
-        The rival of least residual RMS.
+    The region is refitted (plane only) from the plane fit's retry starts (:data:`~simtest.reconstruct.lightaware.
+    plane.RETRY_START_DEPTHS` depths, 1/8 to 8 times the nominal); a refit counts where :func:`_confirms` reads a
+    lone lobe in it and, on ``fit``'s lobe and projection, it leaves a lower residual RMS: the same model's better
+    minimum.
+    ``image``, ``camera``, ``rig``, ``fit_kwargs``, ``gray``: as :func:`lone_lobe_rows`' (``gray`` given). Returns
+    the LightAwareEstimate of least residual RMS among those.
     """
     if fit is None or not fit.ok or fit.residual_rms is None:
         return None
     best = None
     for depth in FitSettings.nominal_depth_mm * np.geomspace(1 / 8, 8, RETRY_START_DEPTHS):
         alt = light_aware_estimates(image, est, camera, rig,
-                                    **(fit_kwargs | PLANE_ONLY | {"nominal_depth_mm": float(depth)}))
+                                    **(fit_kwargs | PLANE_ONLY | {"nominal_depth_mm": float(depth), "lobe": fit.lobe}))
         alt = alt.get("photometric_fit")
         if (alt is not None and alt.projection == fit.projection and alt.residual_rms is not None
                 and alt.residual_rms < (fit.residual_rms if best is None else best.residual_rms)
@@ -168,7 +144,7 @@ def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> boo
     measures a fit's own prediction, on the values the fits read (``values``, clip level ``clip``, None without)."""
     bp = np.asarray(est.bp_px, np.float64)
     pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
-    own = int(np.nanargmin(np.linalg.norm(np.where(np.isfinite(pts), pts, np.inf) - bp, axis=1)))
+    own = nearest_guide(pts, bp)
     ray = unit(camera.pixel_to_ray(bp[None])[0])
     L = np.asarray(rig.positions, np.float64)
     ring = _reach(est, 1.0)
