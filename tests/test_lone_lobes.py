@@ -244,17 +244,20 @@ def test_a_lobe_the_frames_edge_cuts_is_one_guides_where_that_fits_better_than_t
         assert angle_between_deg(s["normal"], seen[0]["normal"]) <= 3.0 * s["normal_sigma_deg"] + 0.2, s["detail"]
 
 
-def test_a_rival_must_be_a_confirmed_lone_lobe_of_lower_residual_on_the_same_projection(monkeypatch):
+def test_a_rival_must_be_a_confirmed_lone_lobe_of_lower_residual_and_no_looser_normal(monkeypatch):
     # lone_rival's rule on canned refits: of the retry starts' fits, the confirmed lone lobes (lone._confirms) on the
-    # joint fit's projection whose residual RMS is below the joint fit's, the least; None where there is none
-    def est(rms, projection="least_fluctuation", lone_=True):
-        return SimpleNamespace(ok=True, residual_rms=rms, projection=projection, lone=lone_, lobe="ggx")
+    # joint fit's projection whose residual RMS is below the joint fit's and whose normal sigma is at most its, the
+    # least RMS; None where there is none
+    def est(rms, projection="least_fluctuation", lone_=True, sigma=0.1):
+        return SimpleNamespace(ok=True, residual_rms=rms, projection=projection, lone=lone_, lobe="ggx",
+                               normal_sigma_deg=sigma)
 
-    joint = est(0.02)
+    joint = est(0.02, sigma=0.2)
     for refits, want in (([est(0.03), est(0.011), est(0.015)], 1),  # the least of those below
                          ([est(0.01, "darkest_channel"), est(0.025)], None),  # another projection's RMS: no unit
                          ([est(0.01, lone_=False), est(0.02)], None),  # the joint plane again, or not below
-                         ([est(0.019), est(0.005, lone_=False)], 0)):
+                         ([est(0.019), est(0.005, lone_=False)], 0),
+                         ([est(0.01, sigma=3.0), est(0.015, sigma=0.2)], 1)):  # a looser normal: no rival
         it = iter(refits)  # (the starts beyond: a far plane's misfit)
         asked = []  # each refit's settings: the joint fit's lobe, the retry's depths
         monkeypatch.setattr(lone, "light_aware_estimates", lambda *a, **k: asked.append(k) or {

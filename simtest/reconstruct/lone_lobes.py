@@ -99,8 +99,9 @@ def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: n
 
     The region is refitted (plane only) from the plane fit's retry starts (:data:`~simtest.reconstruct.lightaware.
     plane.RETRY_START_DEPTHS` depths, 1/8 to 8 times the nominal); a refit counts where :func:`_confirms` reads a
-    lone lobe in it and, on ``fit``'s lobe and projection, it leaves a lower residual RMS: the same model's better
-    minimum.
+    lone lobe in it and, on ``fit``'s lobe and projection, it leaves a lower residual RMS and holds the normal at
+    least as surely (its sigma at most ``fit``'s): the same model's better minimum. A lower residual with a looser
+    normal is the model bending to what it does not describe (a lobe as broad as the shading on a near plane).
     ``image``, ``camera``, ``rig``, ``fit_kwargs``, ``gray``: as :func:`lone_lobe_rows`' (``gray`` given). Returns
     the LightAwareEstimate of least residual RMS among those.
     """
@@ -113,9 +114,15 @@ def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: n
         alt = alt.get("photometric_fit")
         if (alt is not None and alt.projection == fit.projection and alt.residual_rms is not None
                 and alt.residual_rms < (fit.residual_rms if best is None else best.residual_rms)
-                and _confirms(alt, est, camera, rig, gray)):
+                and _as_sure(alt, fit) and _confirms(alt, est, camera, rig, gray)):
             best = alt
     return best
+
+
+def _as_sure(alt, fit) -> bool:
+    """Whether ``alt``'s normal sigma is known and at most ``fit``'s."""
+    return alt.normal_sigma_deg is not None and fit.normal_sigma_deg is not None and (
+        alt.normal_sigma_deg <= fit.normal_sigma_deg)
 
 
 def _confirms(fit, est, camera, rig: LightRig, gray: np.ndarray) -> bool:
