@@ -120,9 +120,11 @@ def test_a_lone_lobes_swapped_guide_is_held_up_exactly_where_the_frame_shows_the
     assert lone._swap_seen(wrong, est, cam, RIG, gray, None)
     alone, est = _peak(here[own], shape, height=top * spec[own])
     assert not lone._swap_seen(wrong, est, cam, RIG, alone, None)
-    # a clipped pixel where the other lobe lies holds the swap up too (a clipped top is a lobe's lower bound)
+    # a clipped top where the other lobe lies holds the swap up too (a clipped top is a lobe's lower bound); 7 x 7 px:
+    # the swapped planes, 1.5 % apart in depth, fall up to 7.4 px apart along the curve at 6 mm (tilt 43 deg, f 287 px:
+    # a single clipped pixel was missed there), and the rise reads the peak within PAIR_TOL_PX of each
     c, r = (int(v) for v in np.rint(here[other]))
-    alone[r, c] = 255.0
+    alone[max(r - 3, 0):r + 4, max(c - 3, 0):c + 4] = 255.0
     assert lone._swap_seen(wrong, est, cam, RIG, alone, 255.0)
 
 
@@ -195,6 +197,17 @@ def test_a_lone_lobe_the_step_accepts_on_a_sensor_like_plane_has_its_normal(tmp_
         assert angle_between_deg(row["normal"], n) <= 3.0 * row["normal_sigma_deg"] + 0.2, row["detail"]
 
 
+@pytest.mark.xfail(strict=True, reason="open: the lone step accepts a lobe whose guide the frame cannot tell")
+def test_a_lone_lobe_whose_swap_the_frame_cannot_show_is_no_accurate_looking_wrong_normal(tmp_path):
+    # a draw of the property above (found locally, where hypothesis explores): tilt 32 deg, 12.4 mm, spec 0.26. The
+    # step accepts the lobe 15.4 deg off with a 0.20 deg sigma, 2.9 px from its specular point: the swapped guide's
+    # plane puts the other lobe where the frame cannot show it, so _swap_seen has nothing to test, and nothing counts
+    # the guides' spread in the sigma. Open (stop 114's note); CI draws its examples derandomized
+    row, n, at = _lone_frame(tmp_path, 32.0, 12.4375, 0.259765625, 355)
+    assert row["status"] == "ok" and "a lone lobe" in row["detail"]
+    assert angle_between_deg(row["normal"], n) <= 3.0 * row["normal_sigma_deg"] + 0.2, row["detail"]
+
+
 @pytest.mark.parametrize("tilt, depth, spec, seed", [
     (22.579870732291123, 15.709464121171075, 0.21031876376122413, 383311),  # pale: chroma 0.77 of the tissue's
     (33.119748519338344, 17.200856544306383, 0.27460104182041684, 961657)])  # low: 0.57 of the room
@@ -253,6 +266,7 @@ def test_a_rival_must_be_a_confirmed_lone_lobe_of_lower_residual_and_no_looser_n
                                normal_sigma_deg=sigma)
 
     joint = est(0.02, sigma=0.2)
+    row, cam = SimpleNamespace(bp_px=np.array([50.0, 40.0])), PinholeCamera(np.diag([100.0, 100.0, 1.0]))
     for refits, want in (([est(0.03), est(0.011), est(0.015)], 1),  # the least of those below
                          ([est(0.01, "darkest_channel"), est(0.025)], None),  # another projection's RMS: no unit
                          ([est(0.01, lone_=False), est(0.02)], None),  # the joint plane again, or not below
@@ -263,7 +277,8 @@ def test_a_rival_must_be_a_confirmed_lone_lobe_of_lower_residual_and_no_looser_n
         monkeypatch.setattr(lone, "light_aware_estimates", lambda *a, **k: asked.append(k) or {
             "photometric_fit": next(it, est(1.0, lone_=False))})
         monkeypatch.setattr(lone, "_confirms", lambda fit, *a: fit.lone)
-        got = lone.lone_rival(None, None, joint, None, RIG, {}, None)
+        monkeypatch.setattr(lone, "_lone_start", lambda *a: True)  # (every retry depth a lone start here)
+        got = lone.lone_rival(None, row, joint, cam, RIG, {}, np.zeros((80, 100)))
         assert got is (None if want is None else refits[want])
         assert {k["lobe"] for k in asked} == {"ggx"}
         np.testing.assert_allclose([k["nominal_depth_mm"] for k in asked], lone.FitSettings.nominal_depth_mm

@@ -108,7 +108,10 @@ def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: n
     if fit is None or not fit.ok or fit.residual_rms is None:
         return None
     best = None
+    ray = unit(camera.pixel_to_ray(np.asarray(est.bp_px, np.float64)[None])[0])
     for depth in FitSettings.nominal_depth_mm * np.geomspace(1 / 8, 8, RETRY_START_DEPTHS):
+        if not _lone_start(ray, float(depth), camera, rig, gray.shape):
+            continue
         alt = light_aware_estimates(image, est, camera, rig,
                                     **(fit_kwargs | PLANE_ONLY | {"nominal_depth_mm": float(depth), "lobe": fit.lobe}))
         alt = alt.get("photometric_fit")
@@ -117,6 +120,23 @@ def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: n
                 and _as_sure(alt, fit) and _confirms(alt, est, camera, rig, gray)):
             best = alt
     return best
+
+
+def _bisector_plane(ray, light_mm, depth_mm: float):
+    """The plane ``(n, h)`` that makes the point at ``depth_mm`` along the unit ``ray`` the light's specular point."""
+    X = depth_mm * ray
+    n = unit(unit(-X) + unit(np.asarray(light_mm, np.float64) - X))
+    return n, float(-n @ X)
+
+
+def _lone_start(ray, depth_mm: float, camera, rig: LightRig, shape) -> bool:
+    """Whether some guide's bisector plane at ``depth_mm`` along the BP's ``ray`` puts every other guide's
+    specular point outside a frame of ``shape``: a start of the lone-lobe hypothesis."""
+    for j, L in enumerate(np.asarray(rig.positions, np.float64)):
+        pts = guide_specular_points(camera, rig, *_bisector_plane(ray, L, depth_mm))
+        if not _in_frame(np.delete(pts, j, axis=0), shape).any():
+            return True
+    return False
 
 
 def _as_sure(alt, fit) -> bool:
@@ -162,10 +182,8 @@ def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> boo
         use = np.flatnonzero(_in_frame(uv, values.shape)
                              & (np.abs(uv - bp).max(axis=1) > LIGHT_AWARE_ROI_SCALE * ring + PAIR_TOL_PX))
         for d, p in zip(_DEPTHS[use], uv[use]):
-            X = d * ray
-            n = unit(unit(-X) + unit(L[i] - X))
-            spec = plane_rig_intensity(unit(camera.pixel_to_ray(np.stack([bp, p])), -1), n, float(-n @ X), rig,
-                                       fit.roughness)
+            spec = plane_rig_intensity(unit(camera.pixel_to_ray(np.stack([bp, p])), -1),
+                                       *_bisector_plane(ray, L[i], d), rig, fit.roughness)
             if not spec[0] > 0 or spec[1] / spec[0] < GUIDE_SEEN_REL:
                 continue
             rise, peak = _rise(values, p, ring)
