@@ -33,6 +33,8 @@ from simtest.reconstruct.light_fits import (PLANE_ONLY, _fit_intensities, _in_fr
                                             light_aware_estimates, nearest_guide)
 from simtest.reconstruct.lightaware.model import plane_rig_intensity
 from simtest.reconstruct.lightaware.plane import RETRY_START_DEPTHS, FitSettings
+from simtest.reconstruct.lightaware.plane_solve import start_depths
+from simtest.reconstruct.lightaware.solve import _bisector_plane
 from simtest.reconstruct.rig_lobes import _bright_region, _inside
 from simtest.reconstruct.rig_pairs import _DEPTHS, _imaged_curves, estimate_wander_px, guide_specular_points
 from simtest.reconstruct.verify import weak_white_peaks
@@ -109,7 +111,7 @@ def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: n
         return None
     best = None
     ray = unit(camera.pixel_to_ray(np.asarray(est.bp_px, np.float64)[None])[0])
-    for depth in FitSettings.nominal_depth_mm * np.geomspace(1 / 8, 8, RETRY_START_DEPTHS):
+    for depth in start_depths(FitSettings.nominal_depth_mm, RETRY_START_DEPTHS):
         if not _lone_start(ray, float(depth), camera, rig, gray.shape):
             continue
         alt = light_aware_estimates(image, est, camera, rig,
@@ -120,13 +122,6 @@ def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: n
                 and _as_sure(alt, fit) and _confirms(alt, est, camera, rig, gray)):
             best = alt
     return best
-
-
-def _bisector_plane(ray, light_mm, depth_mm: float):
-    """The plane ``(n, h)`` that makes the point at ``depth_mm`` along the unit ``ray`` the light's specular point."""
-    X = depth_mm * ray
-    n = unit(unit(-X) + unit(np.asarray(light_mm, np.float64) - X))
-    return n, float(-n @ X)
 
 
 def _lone_start(ray, depth_mm: float, camera, rig: LightRig, shape) -> bool:

@@ -11,6 +11,7 @@ from simtest.reconstruct._pixels import uv_to_rc
 from simtest.tolerances import TOL
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.model import _camera, _normal_derivs, _ray_light, _rays, _terms
+from simtest.reconstruct.lightaware.plane_solve import start_depths
 from simtest.reconstruct.lightaware.solve import _bisector_plane, _finish, _implausible, _solve, _start
 
 
@@ -199,7 +200,7 @@ def isocurve_fit(points_uv, isovalues, bp_uv, camera, rig: LightRig, *, nominal_
     # start: the given one and planes along the BP's constraint (as in photometric_fit)
     cands = [(n0, h0)]
     if n_start_depths and np.linalg.norm(L) > 0:
-        cands += [_bisector_plane(d_bp, L, sdep) for sdep in nominal_depth_mm * np.geomspace(1 / 8, 8, n_start_depths)]
+        cands += [_bisector_plane(d_bp, L, sdep) for sdep in start_depths(nominal_depth_mm, n_start_depths)]
     q0, _, n0_c, h0_c = min((tau_start(n, h) + (n, h) for n, h in cands), key=lambda c: c[1])
     if n0_c is not n0:  # the weights and levels at the chosen start
         n0, h0 = n0_c, h0_c

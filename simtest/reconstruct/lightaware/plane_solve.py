@@ -30,6 +30,11 @@ def _screened(m: PlaneModel, starts, given):
     return min(starts, key=cost)
 
 
+def start_depths(nominal_depth_mm: float, n: int) -> np.ndarray:
+    """The ``n`` start depths (mm) along the BP's ray of a fit's retry: ``nominal_depth_mm`` / 8 to x 8, geometric."""
+    return nominal_depth_mm * np.geomspace(1 / 8, 8, n)
+
+
 def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
     """The start planes (n, h) of a fit: the given start (or, under several lights, the cheapest of the
     mean light's and each light's bisector at the nominal depth, plus ``s.pair_starts``), the nominal
@@ -43,7 +48,7 @@ def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
         cands += [_light_start(d_bp, rig_arr[0][i], d) for i, _, d in s.pair_starts]
     if np.abs(rig_arr[0]).max() > 0:
         Lm = _mean_light(rig)
-        depths = (list(nominal_depth_mm * np.geomspace(1 / 8, 8, s.n_start_depths)) if s.n_start_depths else [])
+        depths = list(start_depths(nominal_depth_mm, s.n_start_depths)) if s.n_start_depths else []
         if s.start_normal is not None:
             depths.append(nominal_depth_mm)
         cands += [_bisector_plane(d_bp, Lm, sdep) for sdep in depths]
