@@ -11,7 +11,11 @@ The fit confirms the lobe where it is ok with its distance, puts one guide's spe
 guide's outside the frame: the rig's geometry then explains both what the frame shows and what it does not.
 One lobe alone hardly tells which guide lit it: the swapped hypothesis (another guide lit the BP, at any depth
 of the depth of field) must be refuted by the image too, no lobe rising where it puts the fit's own guide's
-(:func:`_swap_seen`). The row becomes ``ok`` with that fit.
+(:func:`_swap_seen`). The row becomes ``ok`` with that fit. Where the frame could show none of the swapped
+hypotheses' lobes (each off the frame or within the lobe's own tails), nothing refutes them: the fit's sigma
+counts the guides' spread (:func:`~simtest.reconstruct.recommend.with_guide_spread`), and the BP ray is kept:
+each guide's plane may fit one weak lobe about as well, and a tight sigma from one of them would claim what the
+frame does not hold.
 
 Where the frame's edge cuts a region split into two guides' fused lobes, the joint fit may have settled on a far
 plane that puts both points in it while one guide's lobe alone, its twin beyond the edge, fits better
@@ -35,6 +39,7 @@ from simtest.reconstruct.lightaware.model import plane_rig_intensity
 from simtest.reconstruct.lightaware.plane import RETRY_START_DEPTHS, FitSettings
 from simtest.reconstruct.lightaware.plane_solve import start_depths
 from simtest.reconstruct.lightaware.solve import _bisector_plane
+from simtest.reconstruct.recommend import with_guide_spread
 from simtest.reconstruct.rig_lobes import _bright_region, _inside
 from simtest.reconstruct.rig_pairs import _DEPTHS, _imaged_curves, estimate_wander_px, guide_specular_points
 from simtest.reconstruct.verify import weak_white_peaks
@@ -88,11 +93,19 @@ def lone_lobe_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwa
     for k in tries[:rig.light_places]:
         fit = light_aware_estimates(image, out[k], camera, rig, **(fit_kwargs | PLANE_ONLY | wide))
         fit = fit.get("photometric_fit")
-        if _confirms(fit, out[k], camera, rig, gray) and not _swap_seen(fit, out[k], camera, rig, values, clip):
-            out[k] = dataclasses.replace(
-                out[k], status="ok", light_aware={"photometric_fit": fit},
-                detail=f"{out[k].detail}; a lone lobe: its plane fit puts its guide's specular point on its BP and "
-                       "every other guide's outside the frame, and no other guide lit it")
+        if not _confirms(fit, out[k], camera, rig, gray):
+            continue
+        seen = _swap_seen(fit, out[k], camera, rig, values, clip)
+        if seen:
+            continue
+        ray = unit(camera.pixel_to_ray(np.asarray(out[k].bp_px, np.float64)[None])[0])
+        fit = with_guide_spread(fit, ray, fit.distance_mm, rig, unresolved=seen is None)
+        why = ("no other guide lit it" if seen is not None else
+               "the frame could show no lobe of another guide's hypothesis")
+        out[k] = dataclasses.replace(
+            out[k], status="ok", light_aware={"photometric_fit": fit},
+            detail=f"{out[k].detail}; a lone lobe: its plane fit puts its guide's specular point on its BP and "
+                   f"every other guide's outside the frame, and {why}")
     return out
 
 
@@ -158,12 +171,13 @@ def _confirms(fit, est, camera, rig: LightRig, gray: np.ndarray) -> bool:
     return not inside.any()  # (NaN: the plane images no point of that guide; compares False, so outside)
 
 
-def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> bool:
+def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> bool | None:
     """Whether the image holds up the swapped hypothesis of a lone lobe's fit: another guide ``i`` lit the BP (the
     plane of ``i``'s bisector at a depth of the rig's curves, :mod:`~simtest.reconstruct.rig_pairs`), and the fit's
     own guide or another shows a lobe predicted at least GUIDE_SEEN_REL as high (the fit's roughness) beyond the own
     lobe's tails (LIGHT_AWARE_ROI_SCALE times its half-size, plus PAIR_TOL_PX): measured as ``light_fits._unseen_guide``
-    measures a fit's own prediction, on the values the fits read (``values``, clip level ``clip``, None without)."""
+    measures a fit's own prediction, on the values the fits read (``values``, clip level ``clip``, None without).
+    None where the frame could show no such lobe (nothing tested)."""
     bp = np.asarray(est.bp_px, np.float64)
     pts = guide_specular_points(camera, rig, fit.normal, fit.distance_mm)
     own = nearest_guide(pts, bp)
@@ -171,6 +185,7 @@ def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> boo
     L = np.asarray(rig.positions, np.float64)
     ring = _reach(est, 1.0)
     height = _rise(values, bp, ring)[0]
+    tested = False
     for i, j, uv in _imaged_curves(camera, L, ray, _DEPTHS):
         if i == own:
             continue
@@ -181,7 +196,8 @@ def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> boo
                                        *_bisector_plane(ray, L[i], d), rig, fit.roughness)
             if not spec[0] > 0 or spec[1] / spec[0] < GUIDE_SEEN_REL:
                 continue
+            tested = True
             rise, peak = _rise(values, p, ring)
             if rise >= GUIDE_SEEN_REL * spec[1] / spec[0] * height or (clip is not None and peak >= clip):
                 return True
-    return False
+    return False if tested else None

@@ -187,12 +187,15 @@ def guide_spread_deg(ray, normal, depth_mm: float, rig: LightRig) -> float:
     return float(np.max(angle_between_deg(halves, normal)))
 
 
-def with_guide_spread(r: LightAwareEstimate, ray, depth_mm: float, rig: LightRig) -> LightAwareEstimate:
+def with_guide_spread(r: LightAwareEstimate, ray, depth_mm: float, rig: LightRig, *,
+                      unresolved: bool | None = None) -> LightAwareEstimate:
     """``r`` with :func:`guide_spread_deg` added in quadrature to its ``normal_sigma_deg`` (set as
-    ``guide_spread_deg``) where it gives a normal and its sigma without its depth under two or more
-    lights at different places; else ``r``. Rule 3 (module docstring) then keeps the BP ray.
+    ``guide_spread_deg``) where it gives a normal and its sigma, which guide lit its lobe is
+    ``unresolved`` (None: where its depth is not observable) and the rig has two or more lights at
+    different places; else ``r``. Rules 1 and 3 (module docstring) then keep the BP ray.
     """
-    if (r.status != "depth_not_observable" or not r.has_normal or r.normal_sigma_deg is None
+    unresolved = r.status == "depth_not_observable" if unresolved is None else unresolved
+    if (not unresolved or not r.has_normal or r.normal_sigma_deg is None
             or not rig.has_separate_lights or r.guide_spread_deg is not None):
         return r
     spread = guide_spread_deg(ray, r.normal, depth_mm, rig)
