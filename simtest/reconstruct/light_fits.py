@@ -53,7 +53,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                           quadric_roi_scale: float = 1.5, supersample: int = 1, quadric: bool | None = None,
                           cubic: bool | None = False, response=None, diffuse: bool | None = None,
                           lobe: str | None = None, linear=None, colour: bool | None = None,
-                          floor_refit: bool = False, pair_starts=(), lobe_partners=()) -> dict[str, LightAwareEstimate]:
+                          floor_refit: bool = False, pair_starts=(), lobe_partners=(),
+                          guide_starts=()) -> dict[str, LightAwareEstimate]:
     """Run the light-aware estimators on one detected highlight.
 
     ``isocurve_fit`` takes its own isophotes (module docstring); ``photometric_fit`` the ROI grown
@@ -102,6 +103,9 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
         than the lobe's size becomes ``guide_misfit`` (one guide's lobe alone hardly tells which guide lit
         it), as does any plane fit that puts another guide's lobe in the frame where the image shows none
         (:func:`_unseen_guide`).
+    guide_starts : sequence of (int, float)
+        Where given, the plane fit's only starts: guide i's bisector plane at depth d mm along the BP's
+        ray, for each (i, d) (one guide's hypothesis of a lone lobe: :mod:`~simtest.reconstruct.lone_lobes`).
     lobe_partners : sequence of (float, float)
         BPs (u, v), px, of the other candidates whose ROI meets the grown one (:func:`with_light_aware`).
         Under separate lights they may be the other guides' lobes of one curved patch: a quadric fit that
@@ -133,7 +137,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     colour = colour_fit_applies(img, response) if colour is None else colour
     lobe = ("auto" if colour else "phong") if lobe is None else lobe
     pkw = dict(nominal_depth_mm=nominal_depth_mm, start_normal=start_n, supersample=supersample, diffuse=diffuse,
-               censor=censor, lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step)
+               censor=censor, lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step,
+               guide_starts=tuple((int(i), float(d)) for i, d in guide_starts))
     pf = _photometric(img, gray, big, est, camera, rig, response, colour, saturation_level, pkw)
     lobe_roi = _lobe_roi(pf, est.bp_px, camera, rig, img.shape, big)
     if lobe_roi is not None:

@@ -12,14 +12,15 @@ guide's outside the frame: the rig's geometry then explains both what the frame 
 One lobe alone hardly tells which guide lit it: the swapped hypothesis (another guide lit the BP, at any depth
 of the depth of field) must be refuted by the image too, no lobe rising where it puts the fit's own guide's
 (:func:`_swap_seen`). The row becomes ``ok`` with that fit. Where the frame could show none of the swapped
-hypotheses' lobes (each off the frame or within the lobe's own tails), nothing refutes them: the fit's sigma
-counts the guides' spread (:func:`~simtest.reconstruct.recommend.with_guide_spread`), and the BP ray is kept:
-each guide's plane may fit one weak lobe about as well, and a tight sigma from one of them would claim what the
-frame does not hold.
+hypotheses' lobes (each off the frame or within the lobe's own tails), the fit must refute them: started from
+another guide's bisector planes alone, it must not settle on an ok plane that confirms a lone lobe of that
+guide (:func:`_guide_resolved`). Else each guide's plane fits the lobe, and the fit's sigma counts the guides'
+spread (:func:`~simtest.reconstruct.recommend.with_guide_spread`): the BP ray is kept.
 
 Where the frame's edge cuts a region split into two guides' fused lobes, the joint fit may have settled on a far
 plane that puts both points in it while one guide's lobe alone, its twin beyond the edge, fits better
-(:func:`lone_rival`; :func:`~simtest.reconstruct.rig_lobes.split_fused_lobes` then gives that guide's row).
+(:func:`lone_rival`; :func:`~simtest.reconstruct.rig_lobes.split_fused_lobes` then gives that guide's row), its
+guide told apart as above.
 """
 
 from __future__ import annotations
@@ -95,18 +96,51 @@ def lone_lobe_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwa
         fit = fit.get("photometric_fit")
         if not _confirms(fit, out[k], camera, rig, gray):
             continue
-        seen = _swap_seen(fit, out[k], camera, rig, values, clip)
-        if seen:
+        fit, why = _told_apart(image, out[k], fit, camera, rig, fit_kwargs | wide, gray, values, clip)
+        if fit is None:
             continue
-        ray = unit(camera.pixel_to_ray(np.asarray(out[k].bp_px, np.float64)[None])[0])
-        fit = with_guide_spread(fit, ray, fit.distance_mm, rig, unresolved=seen is None)
-        why = ("no other guide lit it" if seen is not None else
-               "the frame could show no lobe of another guide's hypothesis")
         out[k] = dataclasses.replace(
             out[k], status="ok", light_aware={"photometric_fit": fit},
             detail=f"{out[k].detail}; a lone lobe: its plane fit puts its guide's specular point on its BP and "
                    f"every other guide's outside the frame, and {why}")
     return out
+
+
+def _told_apart(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray, values=None, clip=None):
+    """``(fit, why)``: a lone lobe's confirmed ``fit`` as released, and which image evidence tells its guide
+    (module docstring); ``(None, "")`` where the image shows another guide lit it. ``values``, ``clip``: the
+    values the fits read and their clip level (None: read from ``image`` and ``fit_kwargs``)."""
+    if values is None:
+        values, clip = _fit_intensities(np.asarray(image), fit_kwargs.get("response"), fit_kwargs.get("linear"),
+                                        fit_kwargs.get("saturation_level"))[:2]
+    seen = _swap_seen(fit, est, camera, rig, values, clip)
+    if seen:
+        return None, ""
+    if seen is False:
+        return fit, "no other guide lit it"
+    if _guide_resolved(image, est, fit, camera, rig, fit_kwargs, gray):
+        return fit, "no other guide's plane fits it"
+    ray = unit(camera.pixel_to_ray(np.asarray(est.bp_px, np.float64)[None])[0])
+    return with_guide_spread(fit, ray, fit.distance_mm, rig, unresolved=True), "another guide's plane fits it too"
+
+
+def _guide_resolved(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray) -> bool:
+    """Whether no other guide's hypothesis fits ``est``'s lobe: the plane fit (on ``fit``'s lobe) started from
+    each other guide's bisector planes along the BP's ray alone (the retry's depths) is not ok, or confirms no
+    lone lobe of that guide (:func:`_confirms`)."""
+    bp = np.asarray(est.bp_px, np.float64)
+    own = nearest_guide(guide_specular_points(camera, rig, fit.normal, fit.distance_mm), bp)
+    depths = start_depths(FitSettings.nominal_depth_mm, RETRY_START_DEPTHS)
+    for i in range(len(rig.positions)):
+        if i == own:
+            continue
+        starts = {"lobe": fit.lobe, "guide_starts": tuple((i, float(d)) for d in depths)}
+        alt = light_aware_estimates(image, est, camera, rig, **(fit_kwargs | PLANE_ONLY | starts))
+        alt = alt.get("photometric_fit")
+        if _confirms(alt, est, camera, rig, gray) and nearest_guide(
+                guide_specular_points(camera, rig, alt.normal, alt.distance_mm), bp) == i:
+            return False
+    return True
 
 
 def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: np.ndarray):
@@ -118,7 +152,8 @@ def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: n
     least as surely (its sigma at most ``fit``'s): the same model's better minimum. A lower residual with a looser
     normal is the model bending to what it does not describe (a lobe as broad as the shading on a near plane).
     ``image``, ``camera``, ``rig``, ``fit_kwargs``, ``gray``: as :func:`lone_lobe_rows`' (``gray`` given). Returns
-    the LightAwareEstimate of least residual RMS among those.
+    the LightAwareEstimate of least residual RMS among those, its guide told apart as a lone lobe's (module
+    docstring; None where the image shows another guide lit it).
     """
     if fit is None or not fit.ok or fit.residual_rms is None:
         return None
@@ -134,7 +169,7 @@ def lone_rival(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray: n
                 and alt.residual_rms < (fit.residual_rms if best is None else best.residual_rms)
                 and _as_sure(alt, fit) and _confirms(alt, est, camera, rig, gray)):
             best = alt
-    return best
+    return None if best is None else _told_apart(image, est, best, camera, rig, fit_kwargs, gray)[0]
 
 
 def _lone_start(ray, depth_mm: float, camera, rig: LightRig, shape) -> bool:

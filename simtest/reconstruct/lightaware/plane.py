@@ -63,6 +63,9 @@ class FitSettings:
     pair_starts : tuple of (int, int, float)
         (i, j, d): light i's start at depth d mm along the BP ray, refined too without a start normal
         (:func:`~simtest.reconstruct.rig_pairs.pair_starts`).
+    guide_starts : tuple of (int, float)
+        (i, d): where given, the fit's only starts, light i's bisector plane at depth d mm along the BP
+        ray (one guide's hypothesis of a lone lobe: :mod:`~simtest.reconstruct.lone_lobes`).
     loss : str
         ``linear`` (Gaussian sensor noise), or ``soft_l1``, ``huber``, ``cauchy`` (reweighted).
     f_scale : float
@@ -122,6 +125,7 @@ class FitSettings:
     start_roughness: float | None = None
     start_distance_mm: float | None = None
     pair_starts: tuple = ()
+    guide_starts: tuple = ()
     loss: str = "linear"
     f_scale: float = 0.02
     supersample: int = 1

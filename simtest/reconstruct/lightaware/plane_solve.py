@@ -39,8 +39,10 @@ def start_planes(m: PlaneModel, rig, d_bp, n0, h0, s) -> list:
     """The start planes (n, h) of a fit: the given start (or, under several lights, the cheapest of the
     mean light's and each light's bisector at the nominal depth, plus ``s.pair_starts``), the nominal
     bisector when a start was given, and ``s.n_start_depths`` bisectors along the BP's constraint
-    (nominal/8 to nominal*8)."""
+    (nominal/8 to nominal*8); ``s.guide_starts`` alone where given."""
     nominal_depth_mm, rig_arr = s.nominal_depth_mm, m.rig_arr
+    if s.guide_starts:
+        return [_light_start(d_bp, rig_arr[0][i], d) for i, d in s.guide_starts]
     cands = [(n0, h0)]
     if s.start_normal is None and len(rig_arr[0]) > 1:
         # a highlight is one light's: the cheapest of each light's bisector, and the pairs' starts
