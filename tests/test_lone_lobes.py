@@ -342,21 +342,3 @@ def test_a_lone_lobes_guide_is_told_apart_by_the_image_else_by_the_fit_else_its_
         else:
             assert got.guide_spread_deg > 1.0 and got.normal_sigma_deg == pytest.approx(
                 np.hypot(0.1, got.guide_spread_deg)) and np.allclose(got.normal, N)
-
-
-def test_an_ok_rows_lone_lobe_that_each_guides_plane_fits_keeps_the_bp_ray(tmp_path):
-    # Found by a generator of lone lobes at any azimuth (stop 115): a plane 11.9 mm away tilted 24.7 deg (azimuth
-    # 351 deg), the frame cut midway between the guides' specular points (83 px apart), guide 1's lobe alone, guide
-    # 2's point 42 px beyond the right edge. The row was ok, its plane fit reading the lobe as guide 2's (guide 1's
-    # point 128 px beyond the left edge), 18.2 deg off with a 0.47 deg sigma. No swapped hypothesis puts a lobe where
-    # the frame could show it, and the fit started from guide 1's bisector planes alone settles on guide 1's plane:
-    # the row keeps the BP ray (10.4 deg here, between the guides' planes)
-    img, K, n, truth = sensor_plane(24.738575620664236, 11.913732509530023, 479755, spec=0.6258392793860492,
-                                    azimuth_deg=350.67301229693805, size=480, rows=480, f=200.0)
-    cut = int((truth[0][0] + truth[1][0]) / 2)
-    assert truth[0][0] < cut - 40 < cut + 40 < truth[1][0]
-    _write(tmp_path, np.ascontiguousarray(img[:, :cut]), K)
-    rows = [s for s in _reconstruct(tmp_path) if s["status"] == "ok"]
-    assert len(rows) == 1 and np.hypot(*(np.asarray(rows[0]["bp_px"]) - truth[0])) < 4.0
-    assert "its lobe alone in the frame: another guide's plane fits it too" in rows[0]["detail"]
-    assert rows[0]["normal_from"] == "bp_ray" and angle_between_deg(rows[0]["normal"], n) < 18.2
