@@ -290,9 +290,9 @@ def test_a_rival_must_be_a_confirmed_lone_lobe_of_lower_residual_and_no_looser_n
     assert lone.lone_rival(None, None, est(None), None, RIG, {}, None) is None  # no residual: nothing to beat
 
 
-def _pinned_rows(tmp_path, name):
+def _pinned_rows(tmp_path, name, light_aware_only=True):
     """The pinned whole probe frame ``name`` through the command line: its true highlights in the frame, and the
-    ok rows with a light-aware normal."""
+    ok rows with a light-aware normal (every ok row where not ``light_aware_only``)."""
     frame = next(DATA.glob(f"{name}.*g"))
     shutil.copy(frame, tmp_path / f"frame{frame.suffix}")
     shutil.copy(DATA / f"{name}_camera.json", tmp_path / "camera.json")
@@ -302,7 +302,7 @@ def _pinned_rows(tmp_path, name):
                                    "--workers", "1"])
     assert res.exit_code == 0, res.output
     rows = [s for s in json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
-            if s["status"] == "ok" and s["normal_from"] != "bp_ray"]
+            if s["status"] == "ok" and (s["normal_from"] != "bp_ray" or not light_aware_only)]
     return [h for h in truth if h["inside"]], rows
 
 
@@ -317,6 +317,19 @@ def test_a_lone_lobe_only_one_guides_plane_fits_keeps_its_light_aware_normal(tmp
     assert "no other guide's plane fits it" in rows[0]["detail"] and rows[0]["normal_from"] == "photometric_fit"
     assert np.hypot(*(np.asarray(rows[0]["bp_px"]) - seen[0]["specular_px"])) < 4.0
     assert angle_between_deg(rows[0]["normal"], seen[0]["normal"]) <= 3.0 * rows[0]["normal_sigma_deg"] + 0.2
+
+
+def test_an_ok_lone_lobe_each_guides_plane_fits_gets_no_fused_lobes_centroid_normal(tmp_path):
+    # Tuning frame 802/51 (pinned whole): a plane 19 mm away tilted 31 deg, guide 1's clipped GGX lobe alone in the
+    # frame (guide 2's point 17 px beyond its edge). The main path's plane fit is ok, but guide 2's plane fits the
+    # lobe too, so the row's sigma counts the guides' spread. Both hypotheses read the lobe as one guide's alone:
+    # the centroid light's normal (rule 5, a fused lobe's; 5 deg off with a 0.4 deg sigma here) has no premise,
+    # and the row keeps the BP ray. A light-aware normal here would state a sigma the guides' spread refutes.
+    seen, rows = _pinned_rows(tmp_path, "probe802_051", light_aware_only=False)
+    assert len(seen) == 1 and len(rows) == 1, rows
+    assert np.hypot(*(np.asarray(rows[0]["bp_px"]) - seen[0]["specular_px"])) < 4.0
+    assert "another guide's plane fits it too" in rows[0]["detail"], rows[0]["detail"]
+    assert rows[0]["normal_from"] == "bp_ray" and rows[0]["light_aware"].get("rig_centroid") is None
 
 
 def test_a_lone_lobes_guide_is_told_apart_by_the_image_else_by_the_fit_else_its_sigma_counts_the_spread(monkeypatch):
@@ -342,3 +355,21 @@ def test_a_lone_lobes_guide_is_told_apart_by_the_image_else_by_the_fit_else_its_
         else:
             assert got.guide_spread_deg > 1.0 and got.normal_sigma_deg == pytest.approx(
                 np.hypot(0.1, got.guide_spread_deg)) and np.allclose(got.normal, N)
+
+
+def test_an_ok_rows_lone_lobe_that_each_guides_plane_fits_keeps_the_bp_ray(tmp_path):
+    # Found by a generator of lone lobes at any azimuth (stop 115): a plane 11.9 mm away tilted 24.7 deg (azimuth
+    # 351 deg), the frame cut midway between the guides' specular points (83 px apart), guide 1's lobe alone, guide
+    # 2's point 42 px beyond the right edge. The row was ok, its plane fit reading the lobe as guide 2's (guide 1's
+    # point 128 px beyond the left edge), 18.2 deg off with a 0.47 deg sigma. No swapped hypothesis puts a lobe where
+    # the frame could show it, and the fit started from guide 1's bisector planes alone settles on guide 1's plane:
+    # the row keeps the BP ray (10.4 deg here, between the guides' planes)
+    img, K, n, truth = sensor_plane(24.738575620664236, 11.913732509530023, 479755, spec=0.6258392793860492,
+                                    azimuth_deg=350.67301229693805, size=480, rows=480, f=200.0)
+    cut = int((truth[0][0] + truth[1][0]) / 2)
+    assert truth[0][0] < cut - 40 < cut + 40 < truth[1][0]
+    _write(tmp_path, np.ascontiguousarray(img[:, :cut]), K)
+    rows = [s for s in _reconstruct(tmp_path) if s["status"] == "ok"]
+    assert len(rows) == 1 and np.hypot(*(np.asarray(rows[0]["bp_px"]) - truth[0])) < 4.0
+    assert "its lobe alone in the frame: another guide's plane fits it too" in rows[0]["detail"]
+    assert rows[0]["normal_from"] == "bp_ray" and angle_between_deg(rows[0]["normal"], n) < 18.2

@@ -17,6 +17,9 @@ another guide's bisector planes alone, it must not settle on an ok plane that co
 guide (:func:`_guide_resolved`). Else each guide's plane fits the lobe, and the fit's sigma counts the guides'
 spread (:func:`~simtest.reconstruct.recommend.with_guide_spread`): the BP ray is kept.
 
+An ok row whose recommended plane fit reads its lobe as such a lone lobe (:func:`lone_fit_rows`) is told apart
+the same way, and keeps the BP ray where its guide is not.
+
 Where the frame's edge cuts a region split into two guides' fused lobes, the joint fit may have settled on a far
 plane that puts both points in it while one guide's lobe alone, its twin beyond the edge, fits better
 (:func:`lone_rival`; :func:`~simtest.reconstruct.rig_lobes.split_fused_lobes` then gives that guide's row), its
@@ -45,7 +48,7 @@ from simtest.reconstruct.rig_lobes import _bright_region, _inside
 from simtest.reconstruct.rig_pairs import _DEPTHS, _imaged_curves, estimate_wander_px, guide_specular_points
 from simtest.reconstruct.verify import weak_white_peaks
 
-__all__ = ["lone_lobe_rows", "lone_rival"]
+__all__ = ["lone_lobe_rows", "lone_fit_rows", "lone_rival"]
 
 
 def lone_lobe_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwargs: dict, *, gray=None,
@@ -103,6 +106,46 @@ def lone_lobe_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwa
             out[k], status="ok", light_aware={"photometric_fit": fit},
             detail=f"{out[k].detail}; a lone lobe: its plane fit puts its guide's specular point on its BP and "
                    f"every other guide's outside the frame, and {why}")
+    return out
+
+
+def lone_fit_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwargs: dict, *, gray=None) -> list:
+    """The estimates with each ok row whose recommended normal is a plane fit of a lone lobe told apart.
+
+    A row qualifies where its ``photometric_fit`` is recommended, holds its distance and confirms a lone lobe
+    (:func:`_confirms`: one guide's specular point on the row's peak, every other guide's outside the frame).
+    Where the image shows another guide lit it, or another guide's plane fits it too (:func:`_told_apart`), the
+    fit counts the guides' spread in its sigma (:func:`~simtest.reconstruct.recommend.with_guide_spread`) and the
+    recommendation keeps the BP ray. Where another guide's plane fits it too, every hypothesis reads the lobe as
+    one guide's alone, so its ``rig_centroid`` (a fused lobe's normal) is dropped too. Arguments as
+    :func:`lone_lobe_rows`'; returns a list in their order.
+    """
+    if rig is None or not rig.has_separate_lights:
+        return estimates
+    todo = [k for k, e in enumerate(estimates) if e.ok and e.recommended.normal_from == "photometric_fit"
+            and e.light_aware["photometric_fit"].distance_mm is not None
+            and e.light_aware["photometric_fit"].guide_spread_deg is None]
+    if not todo:
+        return estimates
+    img = np.asarray(image)
+    gray = luma(img) if gray is None else gray
+    values, clip = _fit_intensities(img, fit_kwargs.get("response"), fit_kwargs.get("linear"),
+                                    fit_kwargs.get("saturation_level"))[:2]
+    out = list(estimates)
+    for k in todo:
+        fit = out[k].light_aware["photometric_fit"]
+        if not _confirms(fit, out[k], camera, rig, gray):
+            continue
+        told, why = _told_apart(image, out[k], fit, camera, rig, fit_kwargs, gray, values, clip)
+        if told is fit:
+            continue
+        ray = unit(camera.pixel_to_ray(np.asarray(out[k].bp_px, np.float64)[None])[0])
+        told = with_guide_spread(fit, ray, fit.distance_mm, rig, unresolved=True)
+        fits = dict(out[k].light_aware, photometric_fit=told)
+        if why:  # each guide's plane reads the lobe as that guide's alone: no fused lobe for the centroid light
+            fits.pop("rig_centroid", None)
+        out[k] = dataclasses.replace(out[k], light_aware=fits, detail=f"{out[k].detail}; its lobe alone in the "
+                                     f"frame: {why or 'the image shows another guide lit it'}")
     return out
 
 

@@ -35,7 +35,7 @@ from simtest.reconstruct.detect_pixels import luma
 from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_light_aware
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector, reflection_offset_deg
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
-from simtest.reconstruct.lone_lobes import lone_lobe_rows, lone_rival
+from simtest.reconstruct.lone_lobes import lone_fit_rows, lone_lobe_rows, lone_rival
 from simtest.reconstruct.verify import WEAK_TWIN, specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
 from simtest.reconstruct.rig_pairs import estimate_wander_px
@@ -188,7 +188,8 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     given their centroid light's normal, then a curved patch's guide lobes fitted as one
     (:func:`~simtest.reconstruct.curved_lobes.curved_lobe_rows`), the ok plane fits' sigmas raised by
     their miss of the law of reflection at the BP (:func:`_obeys_reflection`), then an ok row left with the BP ray
-    given the plane of a row that places both (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`), then,
+    given the plane of a row that places both (:func:`~simtest.reconstruct.rig_lobes.shared_plane_rows`), an ok
+    row's plane fit of a lone lobe told apart (:func:`~simtest.reconstruct.lone_lobes.lone_fit_rows`), then,
     where no row is ok, a weak lone lobe its plane fit confirms
     (:func:`~simtest.reconstruct.lone_lobes.lone_lobe_rows`); a list of SpecularityEstimate.
     """
@@ -231,6 +232,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
                    "and another's on another highlight)")
             out[k] = dataclasses.replace(out[k], status="ok" if yes else "not_specular",
                                          detail=f"{out[k].detail}, {why}")
+    out = lone_fit_rows(image, out, camera, rig, kwargs, gray=gray)
     return lone_lobe_rows(image, out, camera, rig, kwargs, gray=gray,
                           refused={k for k, e in enumerate(out) if e.bp_px is not None and tuple(e.bp_px) in weak_bps})
 
