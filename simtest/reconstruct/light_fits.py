@@ -22,12 +22,13 @@ from simtest.decisions import (BROAD_LOBE_PHONG_N, CLIP_MARGIN, CLIP_NOISE_FROM_
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi, border_ring
-from simtest.reconstruct.detect import luma, noise_sigma
+from simtest.reconstruct.detect import default_full_scale, luma, noise_sigma
 from simtest.reconstruct.detect_pixels import frame_ceiling, noise_sigma_of_differences
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.jpeg import jpeg_grid
 from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit, isocurve_fit, photometric_fit,
                                             quadric_fit, refine_isophote_points)
+from simtest.reconstruct.verify import specular_colour_at
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
                                            depth_within_ceiling, with_guide_spread)
 from simtest.reconstruct.rig_pairs import (estimate_wander_px, guide_specular_points, pair_misfit_px, pair_partners,
@@ -610,7 +611,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
         roi_scale = kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE)
         _add_lobe_partners(out, todo, jobs, roi_scale)
         fields = {} if kwargs.get("quadric") or kwargs.get("cubic") else glint_fields(  # (True: every highlight)
-            out, [i for i in todo if jobs[i].get("quadric") is not False], rig, roi_scale, np.shape(image), weak)
+            out, [i for i in todo if jobs[i].get("quadric") is not False], rig, roi_scale, np.shape(image),
+            set(weak) | _tissue_clusters(image, out, kwargs.get("response")))
         for i, why in fields.items():
             out[i] = dataclasses.replace(out[i], light_aware={"photometric_fit": LightAwareEstimate(
                 "photometric_fit", "glint_field", why, None)})
@@ -651,7 +653,8 @@ def glint_fields(out: list, rows: list, rig: LightRig, roi_scale: float, shape, 
     """Why each of the ``rows`` of ``out`` whose photometric fit's ROI (``roi_scale`` times its ROI's half-size
     about the BP, within ``shape``) holds as many other glints as the rig has light places: more peaks with its own
     than a smooth patch under the rig shows (a lobe per place). A glint: a candidate ok or only a ``cluster``'s,
-    not a ``weak`` twin (unconfirmed) nor one rejected otherwise (texture's spots, a skirt, a sheen's pieces)."""
+    not one of ``weak`` (a weak twin, unconfirmed; a cluster of the tissue's colour, :func:`_tissue_clusters`) nor
+    one rejected otherwise (texture's spots, a skirt, a sheen's pieces)."""
     glint = [k for k, e in enumerate(out) if getattr(e, "bp_px", None) is not None
              and e.status in ("ok", "cluster") and k not in weak]
     bps, fields = np.array([out[k].bp_px for k in glint], np.float64).reshape(-1, 2), {}
@@ -661,6 +664,21 @@ def glint_fields(out: list, rows: list, rig: LightRig, roi_scale: float, shape, 
             fields[i] = (f"{k + 1} specular peaks in the fit's {big.shape[1]} x {big.shape[0]} px ROI, where a smooth "
                          f"patch under the rig's {rig.light_places} light places shows at most {rig.light_places}")
     return fields
+
+
+def _tissue_clusters(image, out: list, response) -> set[int]:
+    """The ``cluster`` candidates of ``out`` whose BP, unclipped, shows the tissue's colour and not the
+    illuminant's (:func:`~simtest.reconstruct.verify.specular_colour_at`): no glint, whatever their peak. Tissue
+    ringed by darker vessels reads as a peak over a background the vessels pull down; its excess is the
+    tissue's colour, where a glint's is the light's. Empty on a grey frame."""
+    img = np.asarray(image)
+    rows = [k for k, e in enumerate(out) if e.status == "cluster" and not e.saturated
+            and getattr(e, "bp_px", None) is not None]
+    if not rows or img.ndim != 3:
+        return set()
+    white = specular_colour_at(img, luma(img), [out[k].bp_px for k in rows], full_scale=default_full_scale(img),
+                               response=response)
+    return {k for k, w in zip(rows, white) if not w}
 
 
 def _add_lobe_partners(out: list, todo: list, jobs: dict, roi_scale: float) -> None:
