@@ -676,7 +676,7 @@ def _tissue_clusters(image, out: list, response) -> set[int]:
             and getattr(e, "bp_px", None) is not None]
     if not rows or img.ndim != 3:
         return set()
-    white = specular_colour_at(img, luma(img), [out[k].bp_px for k in rows], full_scale=default_full_scale(img),
+    white = specular_colour_at(img, [out[k].bp_px for k in rows], full_scale=default_full_scale(img),
                                response=response)
     return {k for k, w in zip(rows, white) if not w}
 

@@ -139,8 +139,7 @@ def lone_fit_rows(image, estimates: list, camera, rig: LightRig | None, fit_kwar
         told, why = _told_apart(image, out[k], fit, camera, rig, fit_kwargs, gray, values, clip)
         if told is fit:
             continue
-        ray = unit(camera.pixel_to_ray(np.asarray(out[k].bp_px, np.float64)[None])[0])
-        told = with_guide_spread(fit, ray, fit.distance_mm, rig, unresolved=True)
+        told = _with_spread(fit, out[k], camera, rig) if told is None else told
         fits = dict(out[k].light_aware, photometric_fit=told)
         if why:  # each guide's plane reads the lobe as that guide's alone: no fused lobe for the centroid light
             fits.pop("rig_centroid", None)
@@ -163,8 +162,14 @@ def _told_apart(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray, 
         return fit, "no other guide lit it"
     if _guide_resolved(image, est, fit, camera, rig, fit_kwargs, gray):
         return fit, "no other guide's plane fits it"
+    return _with_spread(fit, est, camera, rig), "another guide's plane fits it too"
+
+
+def _with_spread(fit, est, camera, rig: LightRig):
+    """``fit`` with the guides' spread at its distance along ``est``'s BP ray in its sigma, which guide lit the
+    lobe unresolved (:func:`~simtest.reconstruct.recommend.with_guide_spread`)."""
     ray = unit(camera.pixel_to_ray(np.asarray(est.bp_px, np.float64)[None])[0])
-    return with_guide_spread(fit, ray, fit.distance_mm, rig, unresolved=True), "another guide's plane fits it too"
+    return with_guide_spread(fit, ray, fit.distance_mm, rig, unresolved=True)
 
 
 def _guide_resolved(image, est, fit, camera, rig: LightRig, fit_kwargs: dict, gray) -> bool:

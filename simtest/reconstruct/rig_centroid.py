@@ -208,7 +208,7 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
         # clipped in every channel is white whatever the colour at its BP; a pale not_specular one needs only the
         # white share, its tops along the rig's curve standing for a twin). The colour first, the cheaper check
         maybe = [i for i, e in enumerate(estimates) if splittable(e) and not e.ok]
-        white = specular_colour_at(np.asarray(image), gray, [estimates[i].bp_px for i in maybe],
+        white = specular_colour_at(np.asarray(image), [estimates[i].bp_px for i in maybe],
                                    full_scale=default_full_scale(np.asarray(image)), response=kwargs.get("response"),
                                    white_only=[estimates[i].status == "not_specular" for i in maybe])
         split = fused_lobe_candidates(gray, estimates, camera, rig,

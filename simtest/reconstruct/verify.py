@@ -443,7 +443,7 @@ def frame_evidence(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, rois
                     neighbours, full_scale=float(full_scale), noise_bg=noise_bg, white_share=share)
 
 
-def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, *, full_scale: float,
+def specular_colour_at(image: np.ndarray, bps_uv: np.ndarray, *, full_scale: float,
                        response=None, background_px: int | None = None, white_only=None) -> np.ndarray:
     """The colour check of ``not_specular`` alone at the BPs ``bps_uv`` (N, 2) (u, v) px of ``image``
     (``background_px``: as for :func:`bp_checks`); where ``white_only`` (bool (N,)) is set, the white share
@@ -454,9 +454,10 @@ def specular_colour_at(image: np.ndarray, gray: np.ndarray, bps_uv: np.ndarray, 
     bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
     if image.ndim != 3 or not len(bps):
         return np.ones(len(bps), bool)
-    ij = np.clip(np.rint(bps).astype(np.int64), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
+    shape = image.shape[:2]
+    ij = np.clip(np.rint(bps).astype(np.int64), 0, [shape[1] - 1, shape[0] - 1])
     src = image[..., :3]
-    side = background_px or background_side_px(gray.shape)
+    side = background_px or background_side_px(shape)
     bg = _as_srgb(_opening_at(src, side, ij[:, 1], ij[:, 0]), full_scale, response)
     chroma, chroma_tissue, share = _bp_colour(src, ij[:, 1], ij[:, 0], bg, full_scale, response)
     out = _specular_colour(chroma, chroma_tissue, share)
