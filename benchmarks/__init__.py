@@ -37,4 +37,5 @@ SECTIONS: dict[str, str] = {
     "dataset": "benchmarks.dataset:bench_dataset",
     "sensor_like": "benchmarks.sensor_like:bench_sensor_like",
     "sensor_like_near": "benchmarks.sensor_like:bench_sensor_like_near",
+    "sensor_like_coded_noise": "benchmarks.sensor_like:bench_sensor_like_coded_noise",
 }

@@ -18,6 +18,9 @@ those normals (target 0.5 deg), with the statuses met and the seconds a frame ta
 ``simtest bench --only sensor_like_near`` (:func:`bench_sensor_like_near`) draws the same frames nearer,
 from :data:`NEAR`, at :data:`NEAR_ROOT_SEED`: tissue 4 to 10 mm away, guides 2 to 4 mm off the lens
 (epsilon/d up to 0.9, past the 0.05 to 0.5 the targets are set for): the same figures, without targets.
+``simtest bench --only sensor_like_coded_noise`` (:func:`bench_sensor_like_coded_noise`) draws frames as
+:data:`RANGES` does but adds the noise to the 8-bit codes after the clip (:data:`CODED_NOISE`, at
+:data:`CODED_NOISE_ROOT_SEED`), the order of an image shaded, encoded and then noised: the same targets.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ import numpy as np
 from simtest.bench import BenchResult
 from simtest.harness.metrics import MATCH_PX
 
-__all__ = ["bench_sensor_like", "bench_sensor_like_near", "sensor_frame", "score"]
+__all__ = ["bench_sensor_like", "bench_sensor_like_coded_noise", "bench_sensor_like_near", "sensor_frame", "score"]
 
 #: Root seed of the held-out frames (``simtest.decisions.DATA["sensor-like-independent"]``).
 ROOT_SEED = 20261201
@@ -63,6 +66,15 @@ NEAR = {**RANGES, "depth_mm": (4.0, 10.0), "guide_mm": (2.0, 4.0)}
 
 #: Root seed of the near frames (held out as :data:`ROOT_SEED`'s).
 NEAR_ROOT_SEED = 20261204
+
+#: What :func:`bench_sensor_like_coded_noise` draws differently: the noise (0.5 to 2 % of full scale, as
+#: :data:`RANGES`') added to the 8-bit sRGB codes after the clip, clipped again, as an image made by
+#: shading, encoding and then noising is. A clipped plateau is then noisy (2 to 5 levels below 255 here
+#: and there), where a sensor's noise, before its clip, leaves it flat.
+CODED_NOISE = {**RANGES, "noise_after_8_bits": True}
+
+#: Root seed of the coded-noise frames (held out as :data:`ROOT_SEED`'s).
+CODED_NOISE_ROOT_SEED = 20261206
 
 #: Frame sizes drawn (width, height), px.
 SIZES = ((640, 480), (720, 576), (512, 512))
@@ -93,7 +105,9 @@ def sensor_frame(rng: np.random.Generator, ranges: dict | None = None) -> tuple[
     ``(n . h_j)^e``, GGX's normal distribution scaled to peak 1, or Cook-Torrance's microfacet lobe
     (Beckmann's distribution scaled to peak 1, Schlick's Fresnel over F0, the V-cavity shadowing, over
     ``(n . l_j)(n . v)``: the 4 of its denominator folded into ``k_s``); exposed, noised, clipped to [0, 1],
-    through the sRGB curve and rounded to 8 bits (written as JPEG where ``meta["jpeg_quality"]``).
+    through the sRGB curve and rounded to 8 bits (written as JPEG where ``meta["jpeg_quality"]``); with
+    ``ranges["noise_after_8_bits"]`` (:data:`CODED_NOISE`) clipped, encoded and rounded first, the noise then
+    added to the codes (``255 * noise`` levels), rounded and clipped again.
 
     Parameters
     ----------
@@ -164,8 +178,12 @@ def sensor_frame(rng: np.random.Generator, ranges: dict | None = None) -> tuple[
     tissue = np.array([rng.uniform(*rgb) for rgb in ranges["tissue_rgb"]])
     ks, med, noise = draw("spec_gain"), draw("median"), draw("noise")
     lin = med / np.median(diffuse * tissue.max()) * (diffuse[..., None] * tissue + ks * spec[..., None])
-    lin = np.clip(lin + rng.normal(0.0, noise, lin.shape), 0.0, 1.0)
-    frame = np.rint(_srgb(lin) * 255.0).astype(np.uint8)
+    if ranges.get("noise_after_8_bits"):  # clipped, encoded, then noise on the 8-bit values, clipped again
+        code = np.rint(_srgb(np.clip(lin, 0.0, 1.0)) * 255.0)
+        frame = np.clip(np.rint(code + rng.normal(0.0, 255.0 * noise, lin.shape)), 0, 255).astype(np.uint8)
+    else:  # a sensor's order: noise, clip, encoding
+        lin = np.clip(lin + rng.normal(0.0, noise, lin.shape), 0.0, 1.0)
+        frame = np.rint(_srgb(lin) * 255.0).astype(np.uint8)
     camera = {"model": "pinhole", "K": K.tolist(), "image_size": [W, H],
               "lights": [{"position_mm": L.tolist(), "intensity": 1.0, "falloff": "inverse_square",
                           "profile_exponent": 0.0} for L in guides],
@@ -242,6 +260,12 @@ def bench_sensor_like(repeat: int = 3) -> list[BenchResult]:
 def bench_sensor_like_near(repeat: int = 3) -> list[BenchResult]:
     """:func:`bench_sensor_like` on the near frames (:data:`NEAR`, :data:`NEAR_ROOT_SEED`), without targets."""
     return _bench("sensor_like_near", repeat, NEAR, NEAR_ROOT_SEED, (None, None))
+
+
+def bench_sensor_like_coded_noise(repeat: int = 3) -> list[BenchResult]:
+    """:func:`bench_sensor_like` on frames noised after their 8-bit encoding (:data:`CODED_NOISE`,
+    :data:`CODED_NOISE_ROOT_SEED`), with its targets (issue 63's sensor-like images add their 1 % noise last)."""
+    return _bench("sensor_like_coded_noise", repeat, CODED_NOISE, CODED_NOISE_ROOT_SEED, (0.10, 0.5))
 
 
 def _bench(section: str, repeat: int, ranges: dict, root: int, targets) -> list[BenchResult]:

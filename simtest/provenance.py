@@ -70,13 +70,14 @@ DATA: dict[str, DataSet] = {
         "endoscope suite's renders, textured noisy test images, sensor-like plane frames)"),
     "sensor-like-generated": DataSet(
         "tuning", "8-bit sRGB frames of planes under the two guides made by the tests' generators (tests/test_rig_pairs.py "
-        "sensor_plane, tests/test_fused_tops.py ggx_plane) and benchmarks/sensor_like.py's (RANGES at root seed 5, NEAR "
-        "at 5 and 6) at seeds no held-out count names"),
+        "sensor_plane, tests/test_fused_tops.py ggx_plane) and benchmarks/sensor_like.py's (RANGES and CODED_NOISE at "
+        "root seed 5, NEAR at 5 and 6) at seeds no held-out count names"),
     "sensor-like-independent": DataSet(
         "held_out", "8-bit sRGB frames of planes under two guides made by benchmarks/sensor_like.py (a "
         "generator sharing no code with the renderer or the tests' generators: Phong, Blinn-Phong, GGX and "
-        "Cook-Torrance lobes, random K, guides, tissue colours, exposure, noise, PNG or JPEG) at its ROOT_SEED "
-        "and NEAR_ROOT_SEED; judged only (`simtest bench --only sensor_like`, `sensor_like_near`)"),
+        "Cook-Torrance lobes, random K, guides, tissue colours, exposure, noise, PNG or JPEG) at its ROOT_SEED, "
+        "NEAR_ROOT_SEED and CODED_NOISE_ROOT_SEED; judged only (`simtest bench --only sensor_like`, "
+        "`sensor_like_near`, `sensor_like_coded_noise`)"),
     "suites-held-out-seeds": DataSet(
         "held_out", "every bundled suite run at a root seed outside TUNING_ROOT_SEEDS: the same "
         "scenes and settings, new noise, texture and relief draws"),

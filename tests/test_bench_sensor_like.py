@@ -58,3 +58,24 @@ def test_scoring_takes_the_nearest_estimate_within_the_radius_and_only_light_awa
     far = [{**specs[0], "bp_px": [121.0, 100.0]}]
     assert sensor_like.score(far, truth, n)[0] == ("not_detected", None)
     assert sensor_like.score([], truth, n) == [("not_detected", None)] * 2
+
+
+def test_coded_noise_frames_are_the_sensor_order_frames_with_a_noisy_plateau():
+    # the coded-noise section draws the same scene as the sensor order (same geometry, lobe, exposure,
+    # truth) and differs only where the noise goes: after the clip a clipped plateau holds pixels below
+    # 255 (about half its pixels draw a negative noise), before it the plateau stays at 255
+    for seed in range(40):
+        a = sensor_like.sensor_frame(np.random.default_rng(seed))
+        b = sensor_like.sensor_frame(np.random.default_rng(seed), sensor_like.CODED_NOISE)
+        if a[4]["spec_gain"] > 3 and (a[0] == 255).all(axis=2).sum() >= 50:
+            break
+    else:
+        pytest.skip("no frame with a clipped plateau drawn")
+    assert np.array_equal(a[2], b[2]) and np.array_equal(a[3], b[3]) and a[4] == b[4]
+    plateau = (a[0] == 255).all(axis=2)
+    # a clipped linear value gives the code 255; noise of 0.5 to 2 % of 255 (1.3 to 5 levels) drawn after
+    # it leaves a code below 255 in one channel or more for 1 - 0.5^3 of the pixels, 0.6 at the least here
+    below = (b[0][plateau] < 255).any(axis=1).mean()
+    assert below > 0.6, below
+    # elsewhere the two noises are alike: the frames' mean codes agree within a level
+    assert abs(float(a[0].mean()) - float(b[0].mean())) < 1.0
