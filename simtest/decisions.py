@@ -578,7 +578,9 @@ BODY_PROJECTION_MAX_GAIN = decision(
 BODY_SECOND_SNR = decision(
     "BODY_SECOND_SNR", 1.5, "second singular value of the border over the third",
     "A second body colour is believed above this ratio: noise alone gives 1 + 1.25 / sqrt(M) over "
-    "M pixels (thousands: under 1.03); JPEG mucosa measured 1.9 to 2.1, noisy mucosa 1.03 to 1.08.",
+    "M pixels (thousands: under 1.03) where it is the same in every direction, as it is in units of "
+    "each channel's noise (the ratio is read there); JPEG mucosa measured 1.9 to 2.1, noisy mucosa "
+    "1.03 to 1.08.",
     basis="tuned", stage=_L, chosen_on=("suite-endoscope",), n="flat mucosa, JPEG 95 and 75")
 GGX_FILM_IOR = decision(
     "GGX_FILM_IOR", 1.38, "refractive index",

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from simtest._lazy import require
+from simtest.reconstruct.detect_pixels import noise_sigma_of_differences
 
 from simtest.decisions import BODY_PROJECTION_MAX_GAIN, BODY_SECOND_SNR as _BODY_SECOND_SNR
 
@@ -44,7 +45,9 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     channel below its clip less ``censor_margin``, no 8-neighbour clipped: noise leaves a clipped
     channel below its clip now and then, a colour no tissue has), pixels whose projected value
     exceeds :data:`_BODY_TRIM_SHARE` of the peak (another lobe) trimmed in passes; a
-    second body colour counts only above :data:`_BODY_SECOND_SNR` times the third singular value.
+    second body colour counts only above :data:`_BODY_SECOND_SNR` times the third singular value, and
+    so in units of each channel's noise (:func:`_channel_noise`: noise added after a tone curve, or
+    shot noise, is larger in the brighter channels, and a noisier channel alone passes for a colour).
     Otherwise (or with a noise gain ``|w|`` above :data:`BODY_PROJECTION_MAX_GAIN`) the
     least-fluctuation weights stand in (:func:`_least_fluctuation_weights`), and failing those None.
 
@@ -99,10 +102,11 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     if len(edge) < 3:
         return None
     free = v[unclipped]
+    scale = _channel_noise(v, clear)
     keep = np.ones(len(edge), bool)
     w = None
     for _ in range(_BODY_TRIM_PASSES if border else 0):
-        w = _body_weights(edge[keep])
+        w = _body_weights(edge[keep], scale)
         if w is None:
             break
         # border pixels above a share of the peak hold another lobe's white: measure again without them
@@ -111,7 +115,7 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
         if np.array_equal(new, keep) or np.count_nonzero(new) < 3:
             break
         keep = new
-    w = None if w is None else _body_weights(edge[keep])
+    w = None if w is None else _body_weights(edge[keep], scale)
     if w is None and fluctuation:
         # the border's second body colour is lost in the noise
         w = _least_fluctuation_weights(v, ~unclipped)
@@ -124,6 +128,17 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     if two_channels and neg.any():
         _from_two_channels(v, clipped, neg, anyc, values, edge[keep])
     return values, anyc & ~neg, neg, w
+
+
+def _channel_noise(v, clear) -> np.ndarray | None:
+    """Each channel's noise standard deviation over the ROI's pixels clear of the clip (3,), from the second
+    differences along its rows; None where a channel shows none (a noise-free render) or too few pixels do."""
+    ok = clear[:, :-2] & clear[:, 1:-1] & clear[:, 2:]
+    if np.count_nonzero(ok) < _FLUCTUATION_MIN_PIXELS:
+        return None
+    d = v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:])
+    sig = np.array([noise_sigma_of_differences(d[..., c][ok]) for c in range(3)])
+    return sig if (sig > 0).all() else None
 
 
 def _from_two_channels(v, clipped, neg, anyc, values, colours) -> None:
@@ -203,14 +218,17 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
     return w
 
 
-def _body_weights(colours) -> np.ndarray | None:
-    """Weights ``w`` (3,) orthogonal to the two leading right singular vectors of body colours (M, 3),
+def _body_weights(colours, scale=None) -> np.ndarray | None:
+    """Weights ``w`` (3,) orthogonal to the plane of the two leading body colours of ``colours`` (M, 3),
     ``w . (1, 1, 1) = 1``; None without a second body colour or with a gain above
-    :data:`BODY_PROJECTION_MAX_GAIN`."""
+    :data:`BODY_PROJECTION_MAX_GAIN`. ``scale`` (3,): each channel's noise standard deviation; the
+    second colour must stand out in its units too (the noise then alike in every direction). None: as given."""
     sv, Vt = np.linalg.svd(colours, full_matrices=False)[1:]
     one = np.ones(3)
-    # a second body colour only where its singular value stands above the third's and round-off
-    if not (sv[1] > _BODY_SECOND_SNR * sv[2] and sv[1] > 1e-9 * sv[0]):
+    # a second body colour only where its singular value stands above the third's and round-off, and so in
+    # units of each channel's noise, where a noisier channel alone no longer looks like a colour
+    sw = sv if scale is None else np.linalg.svd(colours / scale, compute_uv=False)
+    if not (sv[1] > _BODY_SECOND_SNR * sv[2] and sw[1] > _BODY_SECOND_SNR * sw[2] and sv[1] > 1e-9 * sv[0]):
         return None
     B = Vt[:2].T
     P = np.eye(3) - B @ B.T  # the rows of Vt are orthonormal
