@@ -173,8 +173,12 @@ def _noise_rows(image: np.ndarray) -> np.ndarray:
 
 def _noise_sigma_of_rows(rows: np.ndarray) -> float:
     """:func:`noise_sigma` of the rows it reads (h, W)."""
-    g = rows.astype(np.float32)  # (the MAD in float32, as its float32 data)
-    return noise_sigma_of_differences((g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel())
+    return noise_sigma_of_differences(second_differences(rows.astype(np.float32)).ravel())  # (float32, as its data)
+
+
+def second_differences(x: np.ndarray) -> np.ndarray:
+    """``x - (left + right) / 2`` along the rows of ``x`` (H, W, ...): (H, W - 2, ...), :func:`noise_sigma`'s."""
+    return x[:, 1:-1] - 0.5 * (x[:, :-2] + x[:, 2:])
 
 
 def noise_sigma_of_differences(d: np.ndarray) -> float:
@@ -190,7 +194,7 @@ def noise_level_table(gray: np.ndarray, full_scale: float, fallback: float) -> n
     its neighbours' (:data:`~simtest.decisions.NOISE_LEVEL_BINS` bins).
     """
     g = gray[:: max(1, gray.shape[0] // 192)].astype(np.float32)  # ~200 rows: a few bins' share each
-    d = (g[:, 1:-1] - 0.5 * (g[:, :-2] + g[:, 2:])).ravel()
+    d = second_differences(g).ravel()
     k = _level_bin((g[:, 1:-1] + g[:, :-2] + g[:, 2:]).ravel() / 3.0, full_scale).astype(np.uint8)
     out, ends = np.full(NOISE_LEVEL_BINS, np.nan), np.cumsum(np.bincount(k, minlength=NOISE_LEVEL_BINS))
     for b, db in enumerate(np.split(d[np.argsort(k, kind="stable")], ends[:-1])):  # one radix sort: bins in order

@@ -23,7 +23,7 @@ from simtest.geometry.lights import LightRig
 from simtest.reconstruct import lightaware as _la
 from simtest.reconstruct._pixels import Roi, border_ring
 from simtest.reconstruct.detect import default_full_scale, luma, noise_sigma
-from simtest.reconstruct.detect_pixels import frame_ceiling, noise_sigma_of_differences
+from simtest.reconstruct.detect_pixels import frame_ceiling, noise_sigma_of_differences, second_differences
 from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.jpeg import jpeg_grid
 from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit, isocurve_fit, photometric_fit,
@@ -372,7 +372,7 @@ def _clip_margin(values: np.ndarray, clip):
     for v, cl in zip(chans, np.ravel(clip)):
         v = np.asarray(v, np.float64)
         below = (v[:, :-2] < cl) & (v[:, 1:-1] < cl) & (v[:, 2:] < cl)
-        d = v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:])
+        d = second_differences(v)
         top = below & (np.minimum(v[:, :-2], v[:, 2:]) >= CLIP_NOISE_FROM_REL * cl)
         sig = [noise_sigma_of_differences(d[m]) for m in (below, top) if np.count_nonzero(m) >= 3]
         out.append(CLIP_MARGIN * max(sig, default=0.0))

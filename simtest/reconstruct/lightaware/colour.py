@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from simtest._lazy import require
-from simtest.reconstruct.detect_pixels import noise_sigma_of_differences
+from simtest.reconstruct.detect_pixels import noise_sigma_of_differences, second_differences
 
 from simtest.decisions import BODY_PROJECTION_MAX_GAIN, BODY_SECOND_SNR as _BODY_SECOND_SNR
 
@@ -136,8 +136,7 @@ def _channel_noise(v, clear) -> np.ndarray | None:
     ok = clear[:, :-2] & clear[:, 1:-1] & clear[:, 2:]
     if np.count_nonzero(ok) < _FLUCTUATION_MIN_PIXELS:
         return None
-    d = v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:])
-    sig = np.array([noise_sigma_of_differences(d[..., c][ok]) for c in range(3)])
+    sig = np.array([noise_sigma_of_differences(second_differences(v[..., c])[ok]) for c in range(3)])
     return sig if (sig > 0).all() else None
 
 

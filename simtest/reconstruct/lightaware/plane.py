@@ -18,7 +18,7 @@ from simtest.geometry.angles import angle_between_deg
 from simtest.geometry.lights import LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct._pixels import border_ring
-from simtest.reconstruct.detect_pixels import noise_sigma_of_differences
+from simtest.reconstruct.detect_pixels import noise_sigma_of_differences, second_differences
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.colour import per_channel, specular_image
 from simtest.reconstruct.lightaware.model import _normal_derivs
@@ -387,7 +387,7 @@ def _sees_lobe(values, missing) -> bool:
         return True
     v = np.where(missing, np.nan, np.asarray(values, dtype=np.float64))
     border = border_ring(v)
-    d = (v[:, 1:-1] - 0.5 * (v[:, :-2] + v[:, 2:])).ravel()
+    d = second_differences(v).ravel()
     d, border = d[np.isfinite(d)], border[np.isfinite(border)]
     noise = noise_sigma_of_differences(d) if len(d) >= 3 else 0.0
     return len(border) > 0 and bool(np.nanmax(v) - float(np.median(border)) > SIGNIFICANCE_MIN * noise)
