@@ -3,6 +3,8 @@ body colours measured on the ROI's border and projected out (:func:`specular_ima
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from simtest._lazy import require
@@ -102,7 +104,7 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     if len(edge) < 3:
         return None
     free = v[unclipped]
-    scale = _channel_noise(v, clear)
+    scale = functools.cache(lambda: _channel_noise(v, clear))  # (measured where a second colour is read)
     keep = np.ones(len(edge), bool)
     w = None
     for _ in range(_BODY_TRIM_PASSES if border else 0):
@@ -220,14 +222,18 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
 def _body_weights(colours, scale=None) -> np.ndarray | None:
     """Weights ``w`` (3,) orthogonal to the plane of the two leading body colours of ``colours`` (M, 3),
     ``w . (1, 1, 1) = 1``; None without a second body colour or with a gain above
-    :data:`BODY_PROJECTION_MAX_GAIN`. ``scale`` (3,): each channel's noise standard deviation; the
-    second colour must stand out in its units too (the noise then alike in every direction). None: as given."""
+    :data:`BODY_PROJECTION_MAX_GAIN`. ``scale`` (3,): each channel's noise standard deviation, or a function
+    giving it or None (called only where the colours as given show a second colour); the second colour must
+    stand out in its units too (the noise then alike in every direction). None: as given."""
     sv, Vt = np.linalg.svd(colours, full_matrices=False)[1:]
     one = np.ones(3)
     # a second body colour only where its singular value stands above the third's and round-off, and so in
     # units of each channel's noise, where a noisier channel alone no longer looks like a colour
-    sw = sv if scale is None else np.linalg.svd(colours / scale, compute_uv=False)
-    if not (sv[1] > _BODY_SECOND_SNR * sv[2] and sw[1] > _BODY_SECOND_SNR * sw[2] and sv[1] > 1e-9 * sv[0]):
+    if not (sv[1] > _BODY_SECOND_SNR * sv[2] and sv[1] > 1e-9 * sv[0]):
+        return None
+    scale = scale() if callable(scale) else scale
+    sw = None if scale is None else np.linalg.svd(colours / scale, compute_uv=False)
+    if sw is not None and not sw[1] > _BODY_SECOND_SNR * sw[2]:
         return None
     B = Vt[:2].T
     P = np.eye(3) - B @ B.T  # the rows of Vt are orthonormal
