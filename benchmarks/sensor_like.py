@@ -41,7 +41,8 @@ import numpy as np
 from simtest.bench import BenchResult
 from simtest.harness.metrics import MATCH_PX
 
-__all__ = ["bench_sensor_like", "bench_sensor_like_coded_noise", "bench_sensor_like_near", "sensor_frame", "score"]
+__all__ = ["bench_sensor_like", "bench_sensor_like_coded_noise", "bench_sensor_like_near", "drawn_frame", "sensor_frame",
+           "score", "write_frame"]
 
 #: Root seed of the held-out frames (``simtest.decisions.DATA["sensor-like-independent"]``).
 ROOT_SEED = 20261201
@@ -214,21 +215,33 @@ def score(specs: list[dict], truth: np.ndarray, normal: np.ndarray) -> list[tupl
     return rows
 
 
-def _frame(args) -> tuple[list, float]:
-    i, folder, ranges, root = args
-    while True:  # (redrawn until both highlights lie inside the frame)
-        rng = np.random.default_rng([root, i])
-        frame, camera, normal, truth, meta = sensor_frame(rng, ranges)
+def drawn_frame(root: int, index: int, ranges: dict | None = None) -> tuple:
+    """Frame ``index`` of a section drawn at ``root``: :func:`sensor_frame`'s result from the generator seeded
+    ``[root, index]``, redrawn (``index + 1e6``, ...) until both true highlights lie :data:`EDGE_PX` inside."""
+    while True:
+        frame, camera, normal, truth, meta = sensor_frame(np.random.default_rng([root, index]), ranges)
         W, H = camera["image_size"]
         if np.all((truth >= EDGE_PX) & (truth <= np.array([W, H]) - 1 - EDGE_PX)):
-            break
-        i += 1_000_000
-    sub = folder / f"frame{args[0]:03d}"
-    sub.mkdir()
-    name = "frame.png" if meta["jpeg_quality"] is None else "frame.jpg"
-    cv2.imwrite(str(sub / name), frame[..., ::-1], [] if meta["jpeg_quality"] is None
+            return frame, camera, normal, truth, meta
+        index += 1_000_000
+
+
+def write_frame(folder: Path, frame: np.ndarray, camera: dict, meta: dict) -> Path:
+    """The frame written into ``folder`` as a user gets it (``frame.png``, or ``frame.jpg`` at its drawn quality)
+    beside its ``camera.json``; returns the frame's path."""
+    path = folder / ("frame.png" if meta["jpeg_quality"] is None else "frame.jpg")
+    cv2.imwrite(str(path), frame[..., ::-1], [] if meta["jpeg_quality"] is None
                 else [cv2.IMWRITE_JPEG_QUALITY, meta["jpeg_quality"]])
-    (sub / "camera.json").write_text(json.dumps(camera))
+    (folder / "camera.json").write_text(json.dumps(camera))
+    return path
+
+
+def _frame(args) -> tuple[list, float]:
+    i, folder, ranges, root = args
+    frame, camera, normal, truth, meta = drawn_frame(root, i, ranges)
+    sub = folder / f"frame{i:03d}"
+    sub.mkdir()
+    name = write_frame(sub, frame, camera, meta).name
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "simtest.cli", "reconstruct", str(sub / name), "-k",
                            str(sub / "camera.json"), "-o", str(sub / "out"), "--no-overlay", "-j", "1"],

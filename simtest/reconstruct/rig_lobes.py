@@ -20,7 +20,8 @@ paleness is waived, as for a rig twin: two tops at the rig's baseline are what t
 significant and its tops stretch along the curve, and it gives rows only where the luma dips between its fit's points,
 as does a weak peak the height check passed for its rig twin (a twin elsewhere and both lobes here cannot both hold). A
 lobe the frame's edge cuts (its region, ``touches_border``, or its isophote, ``contour_cut``) gives its guide's row
-where its fit, ok with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top).
+where its fit, ok with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top). Rejected
+candidates on a split's points or inside its closed isophote (noise maxima on the lobes' tops) give no rows.
 
 Partner. An ok row whose plane fit (ok, with its distance) puts its own guide's point on its BP and another guide's on a
 rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander, the placing row's point also inside its closed
@@ -532,10 +533,14 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None,
         return [e for part in parts for e in part]
     _one_split_per_pair(parts, splits)
     out = [e for part in parts for e in part]
-    # a rejected candidate, or an ok one with only the BP ray, on a split's specular point is that row
-    sp = np.asarray([p for k, pts, _, _ in splits if len(parts[k]) > 1 for p in pts], np.float64).reshape(-1, 2)
-    split_rows = {id(r) for k, _, _, _ in splits if len(parts[k]) > 1 for r in parts[k]}
-    near = [bool((np.linalg.norm(sp - np.asarray(e.bp_px, np.float64), axis=1) < PAIR_TOL_PX).any()) for e in out]
+    # a rejected candidate, or an ok one with only the BP ray, on a split's specular point or inside the split
+    # candidate's closed isophote (a maximum the noise made on the lobes' tops: one peak, not many) is that row
+    done = [k for k, _, _, _ in splits if len(parts[k]) > 1]
+    sp = np.asarray([p for k, pts, _, _ in splits if k in done for p in pts], np.float64).reshape(-1, 2)
+    split_rows = {id(r) for k in done for r in parts[k]}
+    bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
+    near = (np.linalg.norm(bps[:, None] - sp[None], axis=-1) < PAIR_TOL_PX).any(axis=1) | np.any(
+        [isophote_holds(unsplit, bps) for k, _, _, unsplit in splits if k in done], axis=0)
     return [e for e, at in zip(out, near)
             if not at or id(e) in split_rows or (e.ok and e.recommended.normal_from != "bp_ray")]
 
