@@ -256,7 +256,9 @@ def sensor_plane(tilt_deg, depth_mm, seed, *, spec=3.0, size=320, f=160.0, shini
     """An 8-bit sRGB frame of a plane under the two guides: Blinn-Phong lobes (exponent
     ``shininess``) and Lambertian shading in the ``tissue`` colour, each guide's light falling
     off with the inverse square, exposed so that the shading's median is ``median`` of full scale
-    (the lobes then clip), 1 % Gaussian noise before the curve. ``texture`` (amplitude, px): the
+    (the lobes then clip), 1 % Gaussian noise before the curve, added after that clip (a clipped top
+    reads clip - |noise| at half its pixels: noisy, as a top noised after its encoding, not flat as a
+    sensor's, whose noise comes before its clip). ``texture`` (amplitude, px): the
     albedo varies by that relative standard deviation over a Gaussian correlation of that many
     pixels (the diffuse light only: the film's lobe is the illuminant's colour); ``gamma``: a
     power-law curve in place of sRGB's. Returns the frame, K, the normal and the true highlights'
