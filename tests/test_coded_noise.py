@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 
-import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -78,11 +77,9 @@ def test_a_plane_noised_after_its_encoding_gets_both_guides_light_aware_normals(
     # gave a curved-patch misfit and the BP ray for both guides (6 deg off); now each guide's row has the
     # joint plane fit's normal. 0.05 deg: ten times the fit's sigma (0.005 deg), the Phong fit of a
     # Blinn-Phong lobe included
-    frame, camera, normal, truth, meta = sensor_like.sensor_frame(np.random.default_rng([5, 13]),
-                                                                  sensor_like.CODED_NOISE)
-    cv2.imwrite(str(tmp_path / "frame.png"), frame[..., ::-1])
-    (tmp_path / "camera.json").write_text(json.dumps(camera))
-    res = CliRunner().invoke(app, ["reconstruct", str(tmp_path / "frame.png"), "-k", str(tmp_path / "camera.json"),
+    frame, camera, normal, truth, meta = sensor_like.drawn_frame(5, 13, sensor_like.CODED_NOISE)
+    path = sensor_like.write_frame(tmp_path, frame, camera, meta)
+    res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(tmp_path / "camera.json"),
                                    "-o", str(tmp_path / "out"), "--no-overlay", "-j", "1"])
     assert res.exit_code == 0, res.output
     specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
