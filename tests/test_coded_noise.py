@@ -71,18 +71,24 @@ def test_two_body_colours_in_anisotropic_noise_are_projected_out(base, absorb, r
         assert abs(w @ b) <= 0.02 * np.linalg.norm(w) * np.linalg.norm(b)
 
 
+def _reconstructed(tmp_path, index: int):
+    """The bench's coded-noise frame ``index`` at the tuning root seed 5 through ``simtest reconstruct``: its rows,
+    true specular points and normal."""
+    frame, camera, normal, truth, meta = sensor_like.drawn_frame(5, index, sensor_like.CODED_NOISE)
+    path = sensor_like.write_frame(tmp_path, frame, camera, meta)
+    res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(tmp_path / "camera.json"),
+                                   "-o", str(tmp_path / "out"), "--no-overlay", "-j", "1"])
+    assert res.exit_code == 0, res.output
+    return json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"], truth, normal
+
+
 def test_a_plane_noised_after_its_encoding_gets_both_guides_light_aware_normals(tmp_path):
     # benchmarks/sensor_like.py's coded-noise frame 13 at the tuning root seed 5 (0.72 % noise on the codes,
     # two Blinn-Phong lobes fused into one clipped highlight): before, the body colours read from the noise
     # gave a curved-patch misfit and the BP ray for both guides (6 deg off); now each guide's row has the
     # joint plane fit's normal. 0.05 deg: ten times the fit's sigma (0.005 deg), the Phong fit of a
     # Blinn-Phong lobe included
-    frame, camera, normal, truth, meta = sensor_like.drawn_frame(5, 13, sensor_like.CODED_NOISE)
-    path = sensor_like.write_frame(tmp_path, frame, camera, meta)
-    res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(tmp_path / "camera.json"),
-                                   "-o", str(tmp_path / "out"), "--no-overlay", "-j", "1"])
-    assert res.exit_code == 0, res.output
-    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
+    specs, truth, normal = _reconstructed(tmp_path, 13)
     scored = sensor_like.score(specs, truth, normal)
     assert all(s == "ok" and e is not None and e < 0.05 for s, e in scored), scored
 
@@ -94,12 +100,7 @@ def test_the_noise_maxima_on_fused_lobes_tops_are_no_highlights_of_their_own(tmp
     # (too_small, cluster), one 1 px from guide 2's specular point where its row is 2 px off. Those inside the
     # split candidate's isophote are now the split's: near each specular point (PAIR_TOL_PX 2 px plus the
     # rows' 2 px) stands the guide's ok row alone. 0.5 deg: the bench's median target (0.04 deg here)
-    frame, camera, normal, truth, meta = sensor_like.drawn_frame(5, 55, sensor_like.CODED_NOISE)
-    path = sensor_like.write_frame(tmp_path, frame, camera, meta)
-    res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(tmp_path / "camera.json"),
-                                   "-o", str(tmp_path / "out"), "--no-overlay", "-j", "1"])
-    assert res.exit_code == 0, res.output
-    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
+    specs, truth, normal = _reconstructed(tmp_path, 55)
     for uv in truth:
         near = [s for s in specs if np.hypot(*(np.asarray(s["bp_px"]) - uv)) < 4.0]
         assert len(near) == 1 and near[0]["status"] == "ok", [(s["status"], s["bp_px"]) for s in near]
