@@ -538,9 +538,9 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None,
     done = [k for k, _, _, _ in splits if len(parts[k]) > 1]
     sp = np.asarray([p for k, pts, _, _ in splits if k in done for p in pts], np.float64).reshape(-1, 2)
     split_rows = {id(r) for k in done for r in parts[k]}
-    bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
-    near = (np.linalg.norm(bps[:, None] - sp[None], axis=-1) < PAIR_TOL_PX).any(axis=1) | np.any(
-        [isophote_holds(unsplit, bps) for k, _, _, unsplit in splits if k in done], axis=0)
+    out_bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
+    near = (np.linalg.norm(out_bps[:, None] - sp[None], axis=-1) < PAIR_TOL_PX).any(axis=1) | np.any(
+        [isophote_holds(unsplit, out_bps) for k, _, _, unsplit in splits if k in done], axis=0)
     return [e for e, at in zip(out, near)
             if not at or id(e) in split_rows or (e.ok and e.recommended.normal_from != "bp_ray")]
 
