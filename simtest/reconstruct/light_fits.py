@@ -90,8 +90,8 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
     diffuse : bool or None
         The rig's Lambertian shading in the photometric model (None: with a ``response``).
     lobe : {"phong", "ggx", "blinn", "auto"} or None
-        The photometric fit's lobe (``"auto"``: GGX where Phong misfits, Blinn where GGX does too); None:
-        "auto" on three channels, else Phong, and GGX beside it where its lobe is broad.
+        The photometric fit's lobe (``"auto"``: GGX where Phong's fit leaves a curved pattern or, on three channels,
+        fails; Blinn where GGX's leaves one too); None: "auto", on one channel with GGX beside a broad Phong lobe.
     floor_refit : bool
         Refit without the pixels whose model lies within a few noise sigmas of an integer image's 0.
     pair_starts : tuple of (int, int, float)
@@ -136,7 +136,7 @@ def light_aware_estimates(image, est, camera, rig: LightRig, *, nominal_depth_mm
                                              nominal_depth_mm=nominal_depth_mm)
         start_n = iso.normal if iso.has_normal else None
     colour = colour_fit_applies(img, response) if colour is None else colour
-    lobe = ("auto" if colour else "phong") if lobe is None else lobe
+    lobe = "auto" if lobe is None else lobe
     pkw = dict(nominal_depth_mm=nominal_depth_mm, start_normal=start_n, supersample=supersample, diffuse=diffuse,
                censor=censor, lobe=lobe, floor_level=floor, floor_refit=floor_refit, floor_step=floor_step,
                guide_starts=tuple((int(i), float(d)) for i, d in guide_starts))
@@ -339,7 +339,7 @@ def _photometric(img, gray, big: Roi, est, camera, rig, response, colour: bool, 
                         camera, rig, projection=projection, **dict(pkw, **extra))
 
     first = fitted("auto")
-    if pkw.get("lobe") == "phong" and _broad_phong(first):
+    if (pkw.get("lobe") == "phong" or (pkw.get("lobe") == "auto" and not colour)) and _broad_phong(first):
         # a broad lobe's tails tell Phong from GGX: the GGX fit from Phong's plane, the better kept
         first = _la.plane._choose_lobe(first, fitted("auto", lobe="ggx", start_normal=first.normal,
                                                      start_roughness=first.roughness))
@@ -381,9 +381,8 @@ def _clip_margin(values: np.ndarray, clip):
 
 def _broad_phong(fit: LightAwareEstimate) -> bool:
     """Whether a Phong fit passed (no curved patch's pattern) with n at most ``BROAD_LOBE_PHONG_N``."""
-    return (fit.has_normal and fit.lobe == "phong" and fit.roughness is not None
-            and fit.roughness <= BROAD_LOBE_PHONG_N and fit.curvature_shift_deg is None
-            and (fit.ok or fit.status == "depth_not_observable"))
+    return (fit.has_normal and fit.lobe == "phong" and fit.roughness is not None and fit.roughness <= BROAD_LOBE_PHONG_N
+            and fit.curvature_shift_deg is None and (fit.ok or fit.status == "depth_not_observable"))
 
 
 def _lobe_roi(fit: LightAwareEstimate, bp_uv, camera, rig, shape, roi: Roi) -> Roi | None:

@@ -201,10 +201,11 @@ def photometric_fit(values, origin_uv, bp_uv, camera, rig: LightRig, settings: F
     Jacobian ``P_[S, B] (g dS)`` gives the fit and the covariance. With ``diffuse`` or censored pixels
     the linear part (with the shading column ``D(p)``) is solved on the active rows at each p.
 
-    With ``lobe="auto"`` the GGX fit runs where Phong's misfits or does not converge, and Blinn's
+    With ``lobe="auto"`` the GGX fit runs where Phong's leaves a curved pattern or (colour) fails, and Blinn's
     where the better of the two leaves a curved pattern (a lobe of the half vector: its peak is
     Phong's, its shape stretches away from the axis [6]_); kept (:func:`_choose_lobe`): converged
-    over not, passing over misfitting, then the lower ``BIC = m log(RSS / m) + k log m`` [5]_; of misfits, Phong.
+    over not, passing over misfitting, then the lower ``BIC = m log(RSS / m) + k log m`` [5]_; of misfits, and
+    of Phong's curved fit and another lobe's of a higher BIC, Phong.
 
     References
     ----------
@@ -272,8 +273,8 @@ def _curved(est: LightAwareEstimate) -> bool:
 
 
 def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAwareEstimate:
-    """One lobe's fit, or with ``lobe="auto"`` Phong's, where it misfits GGX's, where the better of the two leaves
-    a curved pattern Blinn's too (:func:`_choose_lobe`), each from Phong's normal, roughness and fitted distance."""
+    """One lobe's fit, or with ``lobe="auto"`` Phong's, where it fails (one channel: leaves a curved pattern) GGX's,
+    where the better of the two leaves a curved pattern Blinn's too (:func:`_choose_lobe`), each from Phong's fit."""
     fit = (values, origin_uv, bp_uv, camera, rig)
     if s.lobe != "auto":
         return _fit_plane(*fit, s)
@@ -283,6 +284,8 @@ def _fit_lobes(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> LightAw
     # no other lobe needed: passing (or too few pixels to tell) with no curved pattern
     if (pho.ok or pho.status in ("depth_not_observable", "too_few_points")) and pho.curvature_shift_deg is None:
         return pho.noted("phong lobe fits")
+    if colour is None and not _curved(pho):  # (a run-off fit shows no lobe's shape)
+        return pho
     start = (dict(start_normal=pho.normal, start_roughness=pho.roughness, start_distance_mm=pho.fitted_distance_mm)
              if pho.has_normal else dict(start_normal=s.start_normal, start_roughness=s.start_roughness))
     ggx = _fit_plane(*fit, replace(s, lobe="ggx", **start), colour)
@@ -446,16 +449,14 @@ def _bic(est: LightAwareEstimate) -> float:
 
 
 def _choose_lobe(pho: LightAwareEstimate, *others: LightAwareEstimate) -> LightAwareEstimate:
-    """The Phong fit or one of the other lobes' (``photometric_fit``'s Notes); its detail names the others'
-    residual RMS."""
+    """The Phong fit or one of the other lobes' (``photometric_fit``'s Notes); its detail names the others' RMS."""
     def rank(e):  # a curved pattern in the residual (_curved) ranks last; of such, Phong
         failed, flawed = e.status == "not_converged" or not e.has_normal, _curved(e)
         return (failed, flawed, 0.0 if flawed and e is pho else (1.0 if flawed else _bic(e)))
 
     best = min((pho, *others), key=rank)  # (a tie keeps the first: Phong)
-    if best is not pho and pho.status == "plane_misfit" and _bic(best) > _bic(pho):
-        # another lobe's fit that passes with a larger residual than Phong's misfit is no better model
-        best = pho
+    if best is not pho and _curved(pho) and _bic(best) > _bic(pho):
+        best = pho  # another lobe passing with a larger residual than Phong's curved fit: no lobe's pattern
     rms = [f"{e.lobe}'s {e.residual_rms:.4g}" for e in (pho, *others) if e is not best and e.residual_rms is not None]
     why = (f"{best.lobe} lobe: residual RMS {best.residual_rms:.4g} against {', '.join(rms)}"
            if rms and best.residual_rms is not None else f"{best.lobe} lobe")

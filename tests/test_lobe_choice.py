@@ -1,0 +1,78 @@
+"""Which lobe the photometric fit keeps: Phong's, or GGX's or Blinn's where Phong's leaves a curved pattern.
+
+A lobe's shape is not the user's to know: a sharp Blinn lobe fitted with Phong's leaves a residual that
+reads as a curved patch's pattern, on one channel (a JPEG frame's) as on three. So every frame's fit tries
+the other lobes where Phong's residual holds that pattern, and keeps one only where it explains the pattern:
+a lower residual (BIC) than Phong's. A lobe that passes with a larger residual than Phong's curved fit is no
+better model; the pattern is then not the lobe's shape.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
+from benchmarks import sensor_like
+from simtest.cli import app
+from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
+from simtest.reconstruct.lightaware.plane import _choose_lobe
+
+#: The issue's bar for the median error of a light-aware normal on sensor-like frames, deg: each row of the
+#: pinned frames below must meet it alone (before the change: the BP ray, 4 to 6 deg off, and a GGX fit
+#: 1.13 deg off).
+ROW_MAX_DEG = 0.5
+
+
+def _fit(lobe, status, rms, shift=None):
+    return LightAwareEstimate("photometric_fit", status, normal=np.array([0.0, 0.0, -1.0]), residual_rms=rms,
+                              n_residuals=400, lobe=lobe, curvature_shift_deg=shift)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(1e-4, 0.2), st.floats(1e-4, 0.2), st.sampled_from(["ok", "plane_misfit"]))
+def test_another_lobe_replaces_a_curved_phong_fit_only_with_a_lower_residual(rms_phong, rms_other, status):
+    # Phong's fit with a curved pattern (a misfit, or ok with the pattern's shift kept within its sigma) against
+    # a GGX fit that passes: GGX kept exactly where its residual (same pixels, same parameter count) is no larger
+    pho = _fit("phong", status, rms_phong, shift=0.01 if status == "ok" else None)
+    got = _choose_lobe(pho, _fit("ggx", "ok", rms_other))
+    assert got.lobe == ("ggx" if rms_other <= rms_phong else "phong"), got.detail
+
+
+def test_a_passing_phong_fit_without_a_pattern_is_kept_over_a_lower_residual():
+    # no curved pattern: the lobes rank by BIC alone, passing over misfitting (the rule above changes nothing)
+    pho = _fit("phong", "ok", 0.02)
+    assert _choose_lobe(pho, _fit("ggx", "plane_misfit", 0.01)).lobe == "phong"
+    assert _choose_lobe(pho, _fit("ggx", "ok", 0.01)).lobe == "ggx"
+
+
+def _rows(tmp_path, root: int, index: int, ranges: dict):
+    """The bench's frame ``index`` drawn at the tuning ``root`` through ``simtest reconstruct``: each true
+    highlight's status and angular error (None without a light-aware ok normal)."""
+    frame, camera, normal, truth, meta = sensor_like.drawn_frame(root, index, ranges)
+    path = sensor_like.write_frame(tmp_path, frame, camera, meta)
+    res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(tmp_path / "camera.json"),
+                                   "-o", str(tmp_path / "out"), "--no-overlay", "-j", "1"])
+    assert res.exit_code == 0, res.output
+    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
+    return meta, sensor_like.score(specs, truth, normal)
+
+
+def test_a_sharp_blinn_lobe_in_a_jpeg_gets_light_aware_normals(tmp_path):
+    # NEAR root 7 frame 9 (tuning): a Blinn lobe of exponent 1778 under two guides 6.7 mm away, JPEG 81, so the
+    # fit reads one channel. Phong's fit leaves a curved pattern (score 125 and 93 against 21.1); on one channel
+    # no other lobe was tried, and both guides' rows got the BP ray. Blinn's fit passes: 0.017 and 0.15 deg
+    meta, rows = _rows(tmp_path, 7, 9, sensor_like.NEAR)
+    assert meta["lobe"] == "blinn" and meta["jpeg_quality"] is not None
+    assert all(s == "ok" and e is not None and e <= ROW_MAX_DEG for s, e in rows), rows
+
+
+def test_a_worse_fitting_lobe_does_not_replace_phongs_curved_fit(tmp_path):
+    # CODED_NOISE root 5 frame 0 (tuning): a pair of fused clipped lobes whose Phong fit kept a curved pattern
+    # within its sigma; the other lobe, passing with a larger residual, was kept and put both rows 1.13 deg off.
+    # Phong's kept: 0.036 deg
+    _, rows = _rows(tmp_path, 5, 0, sensor_like.CODED_NOISE)
+    assert all(s == "ok" and e is not None and e <= ROW_MAX_DEG for s, e in rows), rows
