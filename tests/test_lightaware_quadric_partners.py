@@ -78,7 +78,7 @@ def test_a_run_off_plane_beside_the_other_guides_lobe_gives_way_to_the_quadric()
     img, rig, ests = _case()
     assert [e.status for e in ests] == ["ok", "ok"]
     for e in light_aware_with_rig(img, ests, K, rig, nominal_depth_mm=20.0):
-        assert e.light_aware["photometric_fit"].status == "not_converged"
+        assert e.light_aware["photometric_fit"].status in ("not_converged", "plane_misfit")  # (run off: tried again)
         assert e.recommended.normal_from == "quadric_fit", e.light_aware
         j = int(np.argmin([np.linalg.norm(_pixel(_specular_point(k)) - e.bp_px) for k in range(2)]))
         x = _specular_point(j)
@@ -99,7 +99,7 @@ def test_a_run_off_plane_on_the_guides_fused_lobes_gives_way_to_the_quadric():
     ests = reconstruct(img, K, settings=ReconSettings.for_frames())
     assert [e.status for e in ests] == ["ok"]
     (e,) = light_aware_with_rig(img, ests, K, rig, nominal_depth_mm=20.0)
-    assert e.light_aware["photometric_fit"].status == "not_converged"
+    assert e.light_aware["photometric_fit"].status in ("not_converged", "plane_misfit")  # (run off: tried again)
     assert e.recommended.normal_from == "quadric_fit", e.light_aware
     for j, L in enumerate(FUSED_LIGHTS):
         x = _specular_point(j, L)

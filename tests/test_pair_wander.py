@@ -77,9 +77,10 @@ def test_two_near_lobes_whose_plateaus_join_within_the_jpeg_margin_get_the_pairs
     # px apart. Their tails sum to within CLIP_LUMA_MARGIN_REL of the clip between the discs: at the margin one top,
     # the whole frame one merged region whose plane fit runs off; before, guide 2's row `merged` (BP ray 10 deg off)
     # and guide 1 none. At the clip the two discs part, the margin's top narrows between them, and the rig pairs
-    # their centroids: both rig_pair rows, 0.18 deg off
+    # their centroids: both rig_pair rows, 0.18 deg off. Since a run-off fit on one channel (the frame's JPEG grid)
+    # is tried again from further starts, the joint plane fit places both, as either row may
     # 0.3 deg: the pair's centroids 0.7 and 2.2 px off the specular points (TOPS_PLACE_SIGMA_PX), 160 px apart
-    _rows_at_truth(tmp_path, "probe801_037", "rig_pair", 0.3)
+    _rows_at_truth(tmp_path, "probe801_037", None, 0.3)
 
 
 def test_one_clipped_top_that_jpeg_broke_at_the_clip_is_not_split_into_the_guides(tmp_path):

@@ -28,7 +28,7 @@ from simtest.reconstruct.lightaware.plane_solve import solve_plane, start_planes
 from simtest.reconstruct.lightaware.solve import _finish, _implausible, _start
 
 
-#: Starts along the BP's constraint of ``photometric_fit``'s second try on the sensor path
+#: Starts along the BP's constraint of ``photometric_fit``'s second try, on three channels or one
 #: (nominal/8 to nominal*8 at factors of 4: a colonoscope's 5 to 50 mm about a nominal 20).
 RETRY_START_DEPTHS = 4
 
@@ -72,7 +72,7 @@ class FitSettings:
         Soft margin of a robust loss, relative to the ROI's maximum.
     n_start_depths : int or None
         Further starts along the BP's constraint (nominal/8 to nominal*8), the least cost kept. None:
-        0, and for RGB, where that fit has no depth, once more with :data:`RETRY_START_DEPTHS` starts.
+        0, and where that fit runs off (RGB: or has no depth), once more with :data:`RETRY_START_DEPTHS` starts.
     supersample : int
         s x s point samples per pixel, averaged (1: the value at the pixel centre).
     max_pixels : int or None
@@ -250,7 +250,7 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
             *fit, replace(s, projection="darkest_channel", two_channels=False)))
     first = _fit_lobes(*fit, replace(s, n_start_depths=0))
     best = first
-    if rgb and first.status in ("depth_not_observable", "not_converged"):
+    if first.status == "not_converged" or (rgb and first.status == "depth_not_observable"):
         again = _fit_lobes(*fit, replace(s, n_start_depths=RETRY_START_DEPTHS))
         if again.has_normal and (not first.has_normal or first.residual_rms is None
                                  or (again.residual_rms is not None and again.residual_rms < first.residual_rms)):
