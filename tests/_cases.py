@@ -93,3 +93,23 @@ def undistort_points(uv, K, dist_coeffs) -> np.ndarray:
     out = cv2.undistortPoints(uv.reshape(-1, 1, 2), K, np.asarray(dist_coeffs, dtype=np.float64).reshape(-1),
                               R=None, P=K, criteria=criteria)
     return out.reshape(-1, 2)
+
+
+def bench_frame_rows(tmp_path, root: int, index: int, ranges: dict):
+    """The sensor-like bench's frame ``index`` drawn at the tuning ``root`` through ``simtest reconstruct`` (its
+    camera file, one worker): ``(meta, rows)``, each true highlight's status and angular error (deg; None without
+    a light-aware ok normal), scored as the bench scores (:func:`benchmarks.sensor_like.score`)."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from benchmarks import sensor_like
+    from simtest.cli import app
+
+    frame, camera, normal, truth, meta = sensor_like.drawn_frame(root, index, ranges)
+    path = sensor_like.write_frame(tmp_path, frame, camera, meta)
+    res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(tmp_path / "camera.json"),
+                                   "-o", str(tmp_path / "out"), "--no-overlay", "-j", "1"])
+    assert res.exit_code == 0, res.output
+    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
+    return meta, sensor_like.score(specs, truth, normal)

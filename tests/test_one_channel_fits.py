@@ -12,15 +12,12 @@ further starts along the BP's constraint (``RETRY_START_DEPTHS``), as on three c
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from typer.testing import CliRunner
 
+from _cases import bench_frame_rows
 from benchmarks import sensor_like
-from simtest.cli import app
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.plane import _choose_lobe
 
@@ -52,23 +49,11 @@ def test_a_passing_phong_fit_without_a_pattern_is_kept_over_a_lower_residual():
     assert _choose_lobe(pho, _fit("ggx", "ok", 0.01)).lobe == "ggx"
 
 
-def _rows(tmp_path, root: int, index: int, ranges: dict):
-    """The bench's frame ``index`` drawn at the tuning ``root`` through ``simtest reconstruct``: each true
-    highlight's status and angular error (None without a light-aware ok normal)."""
-    frame, camera, normal, truth, meta = sensor_like.drawn_frame(root, index, ranges)
-    path = sensor_like.write_frame(tmp_path, frame, camera, meta)
-    res = CliRunner().invoke(app, ["reconstruct", str(path), "-k", str(tmp_path / "camera.json"),
-                                   "-o", str(tmp_path / "out"), "--no-overlay", "-j", "1"])
-    assert res.exit_code == 0, res.output
-    specs = json.loads((tmp_path / "out" / "estimates.json").read_text())["specularities"]
-    return meta, sensor_like.score(specs, truth, normal)
-
-
 def test_a_sharp_blinn_lobe_in_a_jpeg_gets_light_aware_normals(tmp_path):
     # NEAR root 7 frame 9 (tuning): a Blinn lobe of exponent 1778 under two guides 6.7 mm away, JPEG 81, so the
     # fit reads one channel. Phong's fit leaves a curved pattern (score 125 and 93 against 21.1); on one channel
     # no other lobe was tried, and both guides' rows got the BP ray. Blinn's fit passes: 0.017 and 0.15 deg
-    meta, rows = _rows(tmp_path, 7, 9, sensor_like.NEAR)
+    meta, rows = bench_frame_rows(tmp_path, 7, 9, sensor_like.NEAR)
     assert meta["lobe"] == "blinn" and meta["jpeg_quality"] is not None
     assert all(s == "ok" and e is not None and e <= ROW_MAX_DEG for s, e in rows), rows
 
@@ -77,7 +62,7 @@ def test_a_worse_fitting_lobe_does_not_replace_phongs_curved_fit(tmp_path):
     # CODED_NOISE root 5 frame 0 (tuning): a pair of fused clipped lobes whose Phong fit kept a curved pattern
     # within its sigma; the other lobe, passing with a larger residual, was kept and put both rows 1.13 deg off.
     # Phong's kept: 0.036 deg
-    _, rows = _rows(tmp_path, 5, 0, sensor_like.CODED_NOISE)
+    _, rows = bench_frame_rows(tmp_path, 5, 0, sensor_like.CODED_NOISE)
     assert all(s == "ok" and e is not None and e <= ROW_MAX_DEG for s, e in rows), rows
 
 
@@ -86,6 +71,6 @@ def test_fused_lobes_filling_a_jpeg_frame_are_fitted_from_further_starts(tmp_pat
     # clipped region as wide as the frame, JPEG 83. From the nominal 20 mm Phong's fit ran off to 6e-5 mm; on one
     # channel it was not tried again, and both guides got the BP ray of the fused region's middle, 74 and 83 px
     # from their specular points. From the further starts the joint fit places both: 0.016 deg
-    meta, rows = _rows(tmp_path, 7, 56, sensor_like.NEAR)
+    meta, rows = bench_frame_rows(tmp_path, 7, 56, sensor_like.NEAR)
     assert meta["jpeg_quality"] is not None
     assert all(s == "ok" and e is not None and e <= ROW_MAX_DEG for s, e in rows), rows

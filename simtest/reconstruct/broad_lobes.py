@@ -16,7 +16,7 @@ import numpy as np
 from simtest.decisions import BROAD_ISOPHOTE_REL, BROAD_LOBE_SCALE
 from simtest.reconstruct._pixels import Roi
 from simtest.reconstruct.detect import noise_sigma
-from simtest.reconstruct.detect_pixels import background_side_px, wide_lobe_boxes
+from simtest.reconstruct.detect_pixels import background_side_px, interior_top, wide_lobe_boxes
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_pass import detected, frame_pass
 from simtest.reconstruct.frame_prep import _Frame
@@ -104,7 +104,11 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
         bx = np.array([[c.bbox.row0, c.bbox.row1, c.bbox.col0, c.bbox.col1] for c in wide.candidates],
                       np.int64).reshape(-1, 4) + off
         bp = np.array([c.bp_uv for c in wide.candidates], np.float64).reshape(-1, 2) + [crop.col0, crop.row0]
-        pick = np.flatnonzero(np.array([c.status == OK for c in wide.candidates], dtype=bool)
+        # under a rig of separate lights, a region the frame's edge cuts where it holds its lobe's top (the guides'
+        # lobes, fused or not, whose joint plane fit reads the pixels the frame holds: rig_lobes)
+        cut = np.array([rig and c.status == "touches_border" and interior_top(det.gray, bp[k], bx[k])
+                        for k, c in enumerate(wide.candidates)], dtype=bool)
+        pick = np.flatnonzero((np.array([c.status == OK for c in wide.candidates], dtype=bool) | cut)
                               & (np.maximum(bx[:, 1] - bx[:, 0], bx[:, 3] - bx[:, 2]) > narrow)
                               & _in_boxes(bp, box[None]).any(axis=1) & ~_in_boxes(held, bx).any(axis=0)).tolist()
         if not pick:
@@ -117,7 +121,7 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
             ell = None if e.primary is None else e.primary.ellipse
             broad = (2.0 * max(ell.semi_axes) >= BROAD_ISOPHOTE_REL * narrow if ell is not None
                      else not e.ok and min(bx[i, 1] - bx[i, 0], bx[i, 3] - bx[i, 2]) < widest)
-            if (e.ok or (rig and splittable(e))) and not seen and e.primary is not None and broad:
+            if (e.ok or (rig and splittable(e, det.gray))) and not seen and (e.primary is not None or cut[i]) and broad:
                 ests.append(e)
                 cands.append(wide.candidates[i])
                 at.append(bx[i] + [r.row0, r.row0, r.col0, r.col0])

@@ -9,7 +9,8 @@ import numpy as np
 
 from simtest.constants import LUMA_BT601
 from simtest.decisions import (BACKGROUND_DIV, BACKGROUND_PLATEAU_FACTOR, CLIP_LUMA_MARGIN_REL, CLIP_MARGIN_REL,
-                               CODEC_CEILING_SPIKE, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES, SMOOTH_NOISE_MIN_REL,
+                               CODEC_CEILING_SPIKE, NOISE_LEVEL_BINS, NOISE_LEVEL_MIN_SAMPLES, SIGNIFICANCE_MIN,
+                               SMOOTH_NOISE_MIN_REL,
                                SMOOTH_NOISE_PER_PX_REL, SMOOTH_SIGMA_MAX_PX, TOPHAT_MIN_REL)
 from simtest.reconstruct.jpeg import MCU_PX, jpeg_grid
 
@@ -164,6 +165,23 @@ def noise_sigma(gray: np.ndarray) -> float:
         Estimated noise standard deviation (0 for a noise-free smooth or quantised-flat image).
     """
     return _noise_sigma_of_rows(_noise_rows(gray))
+
+
+def interior_top(gray: np.ndarray, bp_uv, box) -> bool:
+    """Whether a region that the frame's edge cuts holds its lobe's top: the luma at its BP ``bp_uv`` (u, v) px
+    stands :data:`~simtest.decisions.SIGNIFICANCE_MIN` noise sigmas (:func:`noise_sigma` of the box) above the
+    highest luma where its box ``(row0, row1, col0, col1)`` meets the edge of ``gray`` (H, W). A lobe's top inside
+    the frame falls off toward the edge; the shoulder of a lobe outside it rises to the edge, whose pixels then
+    hold the region's highest values. False where the box meets no edge of ``gray``."""
+    r0, r1, c0, c1 = (int(v) for v in box)
+    h, w = gray.shape
+    edge = [seg for on, seg in ((r0 <= 0, gray[0, c0:c1]), (r1 >= h, gray[h - 1, c0:c1]), (c0 <= 0, gray[r0:r1, 0]),
+                                (c1 >= w, gray[r0:r1, w - 1])) if on and seg.size]
+    if not edge:
+        return False
+    col, row = (min(max(int(round(float(x))), 0), n - 1) for x, n in zip(bp_uv, (w, h)))
+    rise = float(gray[row, col]) - max(float(seg.max()) for seg in edge)
+    return rise > 0.0 and rise >= SIGNIFICANCE_MIN * noise_sigma(gray[max(r0, 0):r1, max(c0, 0):c1])
 
 
 def _noise_rows(image: np.ndarray) -> np.ndarray:

@@ -39,9 +39,9 @@ from simtest.reconstruct.lone_lobes import lone_fit_rows, lone_lobe_rows, lone_r
 from simtest.reconstruct.verify import WEAK_TWIN, specular_colour_at
 from simtest.reconstruct.recommend import LIGHT_AWARE, _angle_deg, bp_error_depth_mm, bp_ray_error_deg
 from simtest.reconstruct.rig_pairs import estimate_wander_px
-from simtest.reconstruct.rig_lobes import (_bright_region, _inside, fused_lobe_candidates, guide_specular_points,
-                                           isophote_holds, partner_rows, shared_plane_rows, split_fused_lobes,
-                                           splittable)
+from simtest.reconstruct.rig_lobes import (SPLIT_STATUSES, _bright_region, _inside, fused_lobe_candidates,
+                                           guide_specular_points, isophote_holds, partner_rows, shared_plane_rows,
+                                           split_fused_lobes, splittable)
 
 __all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
 
@@ -201,13 +201,13 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     weak_bps = {tuple(estimates[i].bp_px) for i in weak_rows}
     estimates = [dataclasses.replace(e, status="ok") if e.status == WEAK_TWIN else e for e in estimates]
     # the frame's luma once for the three steps, where a highlight or a split may read it
-    gray = luma(np.asarray(image)) if _offset_rig(rig) and any(map(splittable, estimates)) else None
+    gray = luma(np.asarray(image)) if _offset_rig(rig) and any(e.status in SPLIT_STATUSES for e in estimates) else None
     split = []  # the rejected candidates of fused lobes, fitted in the workers
     if gray is not None:
         # two guides' lobes are the illuminant's light: a candidate of the tissue's colour is no pair (a top
         # clipped in every channel is white whatever the colour at its BP; a pale not_specular one needs only the
         # white share, its tops along the rig's curve standing for a twin). The colour first, the cheaper check
-        maybe = [i for i, e in enumerate(estimates) if splittable(e) and not e.ok]
+        maybe = [i for i, e in enumerate(estimates) if splittable(e, gray) and not e.ok]
         white = specular_colour_at(np.asarray(image), [estimates[i].bp_px for i in maybe],
                                    full_scale=default_full_scale(np.asarray(image)), response=kwargs.get("response"),
                                    white_only=[estimates[i].status == "not_specular" for i in maybe])

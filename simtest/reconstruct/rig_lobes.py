@@ -63,7 +63,7 @@ from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FU
 from simtest.geometry.angles import angle_between_deg
 from simtest.reconstruct._pixels import Roi, uv_to_rc
 from simtest.reconstruct.assemble import SpecularityEstimate
-from simtest.reconstruct.detect_pixels import luma, noise_sigma
+from simtest.reconstruct.detect_pixels import interior_top, luma, noise_sigma
 from simtest.reconstruct.isophote import polygon_contains
 from simtest.reconstruct.light_fits import (NOT_FITTED, PLANE_ONLY, _in_frame, _offset_rig, _reach, light_aware_estimates,
                                            lobe_size_px)
@@ -80,11 +80,13 @@ SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "conto
                   "not_specular")
 
 
-def splittable(est) -> bool:
+def splittable(est, gray: np.ndarray | None = None) -> bool:
     """Whether the rule may split a candidate: its status in :data:`SPLIT_STATUSES`, touching the border only
-    with a clipped top in the frame (unclipped, the cut region is as likely one lobe's shoulder), ``not_specular``
-    only under two guides (:func:`fused_lobe_candidates`)."""
-    return est.status in SPLIT_STATUSES and (est.saturated or est.status != "touches_border")
+    with a clipped top in the frame or, unclipped, where its BP is the top of a lobe the edge cuts and not the
+    shoulder of one outside (:func:`~simtest.reconstruct.detect_pixels.interior_top` on the frame's luma ``gray``;
+    without it, not), ``not_specular`` only under two guides (:func:`fused_lobe_candidates`)."""
+    return est.status in SPLIT_STATUSES and (est.saturated or est.status != "touches_border" or (
+        gray is not None and interior_top(gray, est.bp_px, est.roi)))
 
 
 def _roi_base(gray: np.ndarray, est) -> tuple[np.ndarray, float, int, int]:
@@ -448,7 +450,7 @@ def fused_lobe_candidates(gray, estimates, camera, rig, among=None) -> list[int]
     if not _offset_rig(rig):
         return []
     two = len(rig.positions) == 2  # three or more guides' tops make a polygon, not a line
-    return [i for i, e in enumerate(estimates) if (among is None or i in among) and splittable(e) and not e.ok
+    return [i for i, e in enumerate(estimates) if (among is None or i in among) and splittable(e, gray) and not e.ok
             and (two or e.status != "not_specular") and _significant(gray, e)
             and _along_the_rig(gray, e, camera, rig, two and e.status == "not_specular")]
 
