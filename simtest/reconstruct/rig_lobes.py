@@ -15,7 +15,7 @@ own row): BP at its specular point, status ``ok``, the joint fit's normal (a dep
 spread: the points apart tell which guide lit which). A rejected candidate is fitted for this only where the rig's curve
 runs in its region. Under two guides a ``merged`` or ``cluster`` one whose tops do not stretch along that curve gives
 rows only where the luma dips between its fit's two points (:func:`_dips_between`; one elongated blob peaks between
-them). A ``not_specular`` one is fitted under two guides only, where it is white (the colour check's white share; its
+them), or, clipped, lies on the clip there (lobes fused above the clip, whose sum peaks between them). A ``not_specular`` one is fitted under two guides only, where it is white (the colour check's white share; its
 paleness is waived, as for a rig twin: two tops at the rig's baseline are what texture does not repeat), its peak is
 significant and its tops stretch along the curve, and it gives rows only where the luma dips between its fit's points,
 as does a weak peak the height check passed for its rig twin (a twin elsewhere and both lobes here cannot both hold). A
@@ -257,17 +257,22 @@ def _on_the_peaks(gray: np.ndarray, region, camera, rig, normal) -> np.ndarray |
     return pts[np.flatnonzero(on)[np.argmin(cost[on])]] if on.any() else None
 
 
-def _dips_between(gray: np.ndarray, region, pts: np.ndarray) -> bool:
+def _dips_between(gray: np.ndarray, region, pts: np.ndarray, clipped: bool = False) -> bool:
     """Whether the region's luma dips between two guides' specular points ``pts`` (2, 2) (u, v) px: smoothed by a
     Gaussian of :data:`~simtest.decisions.PEAK_SMOOTH_GAP_SHARE` of their gap, the lower of the brightest within
     :data:`~simtest.decisions.PAIR_TOL_PX` of each point stands above the darkest of the segment's middle half by
-    :data:`~simtest.decisions.SIGNIFICANCE_MIN` sigmas of the dip's noise (two lobes, not one elongated blob)."""
+    :data:`~simtest.decisions.SIGNIFICANCE_MIN` sigmas of the dip's noise (two lobes, not one elongated blob).
+    ``clipped``: instead, whether the segment's middle half lies on the clipped top, within
+    :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of the profile's peak: two lobes fused above the clip, whose sum
+    peaks between their points, where no dip can show."""
     mask, r0, c0 = region
     sub = gray[r0:r0 + mask.shape[0], c0:c0 + mask.shape[1]].astype(np.float32)
     gap = float(np.linalg.norm(pts[1] - pts[0]))
     s = max(PEAK_SMOOTH_SIGMA_PX, PEAK_SMOOTH_GAP_SHARE * gap)
     sm = cv2.GaussianBlur(sub, (0, 0), s)
     t, prof = _segment(sm, (r0, c0), pts[0], pts[1], cv2.BORDER_REPLICATE)
+    if clipped:
+        return bool(prof[(t >= 0.25) & (t <= 0.75)].min() >= (1.0 - CLIP_LUMA_MARGIN_REL) * prof.max())
     tops = min(float(prof[t * gap <= PAIR_TOL_PX].max()), float(prof[(1.0 - t) * gap <= PAIR_TOL_PX].max()))
     return _significant_dip(tops - float(prof[(t >= 0.25) & (t <= 0.75)].min()), sub, s)
 
@@ -301,8 +306,9 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray, weak: bool =
             return None
     else:
         return None
-    if _dip_needed(gray, est, camera, rig, weak) and not (len(pts) == 2 and _dips_between(gray, region, pts)):
-        return None  # such a region is two guides' lobes only where its luma dips between their points
+    if _dip_needed(gray, est, camera, rig, weak) and not (len(pts) == 2 and (
+            _dips_between(gray, region, pts) or (est.saturated and _dips_between(gray, region, pts, clipped=True)))):
+        return None  # two guides' lobes only where the luma dips between their points, or is clipped there
     k = np.flatnonzero(_inside(region, pts))
     cut = est.status in _CUT and _plane(fit)
     if len(k) < (1 if cut else 2):
