@@ -70,3 +70,21 @@ def test_broad_lobes_the_frames_edge_cuts_get_light_aware_normals(tmp_path):
     # box's noise sigma (JPEG smooths the codes' noise): both guides' rows now come from the joint plane fit
     _, rows = bench_frame_rows(tmp_path, 5, 59, sensor_like.CODED_NOISE)
     assert all(s == "ok" and e is not None and e <= ROW_MAX_DEG for s, e in rows), rows
+
+
+def test_a_region_of_the_image_is_read_in_its_own_coordinates():
+    # reconstruct(roi=...) detects in a region of the image: a candidate there has image coordinates and the luma is
+    # the region's, its [0, 0] at the region's corner (origin). The lobe's top inside, its region cut by the region's
+    # right edge, is a top exactly as the same candidate in the region's own coordinates is
+    from types import SimpleNamespace
+
+    from simtest.reconstruct.rig_lobes import splittable
+
+    gray = _lobe(100.0, 8.0)  # the region's luma: a top 19 px inside its right edge
+    local = SimpleNamespace(status="touches_border", saturated=False, bp_px=np.array([100.0, 45.0]),
+                            roi=(20, 70, 60, 120))
+    moved = SimpleNamespace(status="touches_border", saturated=False, bp_px=np.array([100.0 + 300, 45.0 + 200]),
+                            roi=(220, 270, 360, 420))
+    assert splittable(local, gray) and splittable(moved, gray, (200, 300))
+    clipped = SimpleNamespace(**{**vars(local), "saturated": True})
+    assert not splittable(local) and splittable(clipped)  # (without a luma: a clipped top only)

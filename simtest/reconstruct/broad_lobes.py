@@ -121,7 +121,8 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
             ell = None if e.primary is None else e.primary.ellipse
             broad = (2.0 * max(ell.semi_axes) >= BROAD_ISOPHOTE_REL * narrow if ell is not None
                      else not e.ok and min(bx[i, 1] - bx[i, 0], bx[i, 3] - bx[i, 2]) < widest)
-            if (e.ok or (rig and splittable(e, det.gray))) and not seen and (e.primary is not None or cut[i]) and broad:
+            kept = e.ok or (rig and splittable(e, det.gray, (r.row0, r.col0)))  # (det.gray: the region r's)
+            if kept and not seen and (e.primary is not None or cut[i]) and broad:
                 ests.append(e)
                 cands.append(wide.candidates[i])
                 at.append(bx[i] + [r.row0, r.row0, r.col0, r.col0])

@@ -15,7 +15,8 @@ own row): BP at its specular point, status ``ok``, the joint fit's normal (a dep
 spread: the points apart tell which guide lit which). A rejected candidate is fitted for this only where the rig's curve
 runs in its region. Under two guides a ``merged`` or ``cluster`` one whose tops do not stretch along that curve gives
 rows only where the luma dips between its fit's two points (:func:`_dips_between`; one elongated blob peaks between
-them), or, clipped, lies on the clip there (lobes fused above the clip, whose sum peaks between them). A ``not_specular`` one is fitted under two guides only, where it is white (the colour check's white share; its
+them), or, clipped, lies on the clip there (lobes fused above the clip, whose sum peaks between them). A
+``not_specular`` one is fitted under two guides only, where it is white (the colour check's white share; its
 paleness is waived, as for a rig twin: two tops at the rig's baseline are what texture does not repeat), its peak is
 significant and its tops stretch along the curve, and it gives rows only where the luma dips between its fit's points,
 as does a weak peak the height check passed for its rig twin (a twin elsewhere and both lobes here cannot both hold). A
@@ -80,13 +81,17 @@ SPLIT_STATUSES = ("ok", "merged", "bad_fit", "not_elliptical", "cluster", "conto
                   "not_specular")
 
 
-def splittable(est, gray: np.ndarray | None = None) -> bool:
+def splittable(est, gray: np.ndarray | None = None, origin=(0, 0)) -> bool:
     """Whether the rule may split a candidate: its status in :data:`SPLIT_STATUSES`, touching the border only
     with a clipped top in the frame or, unclipped, where its BP is the top of a lobe the edge cuts and not the
-    shoulder of one outside (:func:`~simtest.reconstruct.detect_pixels.interior_top` on the frame's luma ``gray``;
-    without it, not), ``not_specular`` only under two guides (:func:`fused_lobe_candidates`)."""
-    return est.status in SPLIT_STATUSES and (est.saturated or est.status != "touches_border" or (
-        gray is not None and interior_top(gray, est.bp_px, est.roi)))
+    shoulder of one outside (:func:`~simtest.reconstruct.detect_pixels.interior_top` on the luma ``gray`` of the
+    region detected, its [0, 0] at the image's (row, col) ``origin``; without it, not), ``not_specular`` only under
+    two guides (:func:`fused_lobe_candidates`)."""
+    if est.status not in SPLIT_STATUSES or est.saturated or est.status != "touches_border":
+        return est.status in SPLIT_STATUSES
+    r0, c0 = origin
+    return gray is not None and interior_top(gray, np.subtract(est.bp_px, (c0, r0)),
+                                             np.subtract(tuple(est.roi), (r0, r0, c0, c0)))
 
 
 def _roi_base(gray: np.ndarray, est) -> tuple[np.ndarray, float, int, int]:
@@ -261,8 +266,8 @@ def _dips_between(gray: np.ndarray, region, pts: np.ndarray, clipped: bool = Fal
     """Whether the region's luma dips between two guides' specular points ``pts`` (2, 2) (u, v) px: smoothed by a
     Gaussian of :data:`~simtest.decisions.PEAK_SMOOTH_GAP_SHARE` of their gap, the lower of the brightest within
     :data:`~simtest.decisions.PAIR_TOL_PX` of each point stands above the darkest of the segment's middle half by
-    :data:`~simtest.decisions.SIGNIFICANCE_MIN` sigmas of the dip's noise (two lobes, not one elongated blob).
-    ``clipped``: instead, whether the segment's middle half lies on the clipped top, within
+    :data:`~simtest.decisions.SIGNIFICANCE_MIN` sigmas of the dip's noise (two lobes, not one elongated blob); or,
+    ``clipped`` (a saturated region), whether that middle half lies on the clipped top, within
     :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of the profile's peak: two lobes fused above the clip, whose sum
     peaks between their points, where no dip can show."""
     mask, r0, c0 = region
@@ -271,10 +276,9 @@ def _dips_between(gray: np.ndarray, region, pts: np.ndarray, clipped: bool = Fal
     s = max(PEAK_SMOOTH_SIGMA_PX, PEAK_SMOOTH_GAP_SHARE * gap)
     sm = cv2.GaussianBlur(sub, (0, 0), s)
     t, prof = _segment(sm, (r0, c0), pts[0], pts[1], cv2.BORDER_REPLICATE)
-    if clipped:
-        return bool(prof[(t >= 0.25) & (t <= 0.75)].min() >= (1.0 - CLIP_LUMA_MARGIN_REL) * prof.max())
+    middle = float(prof[(t >= 0.25) & (t <= 0.75)].min())
     tops = min(float(prof[t * gap <= PAIR_TOL_PX].max()), float(prof[(1.0 - t) * gap <= PAIR_TOL_PX].max()))
-    return _significant_dip(tops - float(prof[(t >= 0.25) & (t <= 0.75)].min()), sub, s)
+    return _significant_dip(tops - middle, sub, s) or (clipped and middle >= (1.0 - CLIP_LUMA_MARGIN_REL) * prof.max())
 
 
 def _dip_needed(gray: np.ndarray, est, camera, rig, weak: bool = False) -> bool:
@@ -306,8 +310,8 @@ def _rows(est, camera, rig, gray, region, pair, others: np.ndarray, weak: bool =
             return None
     else:
         return None
-    if _dip_needed(gray, est, camera, rig, weak) and not (len(pts) == 2 and (
-            _dips_between(gray, region, pts) or (est.saturated and _dips_between(gray, region, pts, clipped=True)))):
+    if _dip_needed(gray, est, camera, rig, weak) and not (len(pts) == 2 and _dips_between(gray, region, pts,
+                                                                                          est.saturated)):
         return None  # two guides' lobes only where the luma dips between their points, or is clipped there
     k = np.flatnonzero(_inside(region, pts))
     cut = est.status in _CUT and _plane(fit)
