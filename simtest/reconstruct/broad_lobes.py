@@ -22,7 +22,8 @@ from simtest.reconstruct.frame_pass import detected, frame_pass
 from simtest.reconstruct.frame_prep import _Frame
 from simtest.reconstruct.light_fits import _offset_rig
 from simtest.reconstruct.rig_lobes import splittable
-from simtest.reconstruct.verify import bp_checks
+from simtest.reconstruct.rig_pairs import rig_twins
+from simtest.reconstruct.verify import WEAK_TWIN, bp_checks
 
 __all__ = ["with_broad_lobes"]
 
@@ -47,11 +48,13 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
        holds no candidate the first pass fitted (one whose colour and height passed: the first
        square measured it, and its verdict stands);
     2. of those, the ones whose brightest pixel passes the colour and height checks on the wider
-       square (:func:`~simtest.reconstruct.verify.bp_checks`);
-    3. the region around each detected again on the wider square, and its accepted candidates in
-       the box through every check. One that comes out ``ok`` (or, under a rig of separate lights, a
-       status the rig's step splits, :func:`~simtest.reconstruct.rig_lobes.splittable`: the guides' lobes
-       fused, or cut by the frame) with a primary isophote at least ``BROAD_ISOPHOTE_REL`` of the first
+       square (:func:`~simtest.reconstruct.verify.bp_checks`), under a rig of separate lights a weak white
+       one for its rig twin as in the first pass; twins are looked at together, in one box;
+    3. the region around each detected again on the wider square, and its accepted candidates wider than
+       the first square (the narrower are the first pass's) in the box through every check. One that comes
+       out ``ok`` (or, under a rig of separate lights, ``weak_twin`` or a status the rig's step splits,
+       :func:`~simtest.reconstruct.rig_lobes.splittable`: the guides' lobes fused, or cut by the frame) with
+       a primary isophote at least ``BROAD_ISOPHOTE_REL`` of the first
        square across (with no ellipse, a region narrower across than ``BROAD_LOBE_SCALE`` of the frame's
        own squares: wider is shading) replaces the estimates in its box.
 
@@ -90,7 +93,9 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
     boxes = wide_lobe_boxes(det.gray, frame.full_scale, side, narrow, BROAD_ISOPHOTE_REL * narrow,
                             frame.settings.isovalues[0], peak_rel=frame.settings.peak_rel)
     boxes = boxes[~_in_boxes(held, boxes).any(axis=0)]
-    boxes = boxes[_specular_tops(frame, sub, det.gray, boxes, side, again[1])] if len(boxes) else boxes
+    if len(boxes):
+        boxes = _twins_together(boxes, *_specular_tops(frame, sub, det.gray, boxes, side, again[1], lights,
+                                                        (r.col0, r.row0)))
     wide_frame = dataclasses.replace(frame, background_px=side)
     # under a rig of separate lights a merged second look is kept too: two guides' broad lobes fused into one
     # region, which the rig's step splits where their luma dips between its fit's points (rig_lobes)
@@ -100,6 +105,9 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
         # the box and half a square around it, on the grid of the wider square's reduced frame
         crop = _aligned_crop(box, side // 2, 2 * max(1, side // 16), sub.shape[:2])
         wide = detected(frame, sub[crop.slices], side)
+        # the crop's candidates no wider than the first square are the first pass's, its verdicts on them stand:
+        # not estimated again, nor guarding the broad lobes' isophotes (a broad top's noise maxima are no BPs)
+        wide = dataclasses.replace(wide, candidates=[c for c in wide.candidates if max(c.bbox.shape) > narrow])
         off = np.array([crop.row0, crop.row0, crop.col0, crop.col0])
         bx = np.array([[c.bbox.row0, c.bbox.row1, c.bbox.col0, c.bbox.col1] for c in wide.candidates],
                       np.int64).reshape(-1, 4) + off
@@ -109,7 +117,6 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
         cut = np.array([rig and c.status == "touches_border" and interior_top(det.gray, bp[k], bx[k])
                         for k, c in enumerate(wide.candidates)], dtype=bool)
         pick = np.flatnonzero((np.array([c.status == OK for c in wide.candidates], dtype=bool) | cut)
-                              & (np.maximum(bx[:, 1] - bx[:, 0], bx[:, 3] - bx[:, 2]) > narrow)
                               & _in_boxes(bp, box[None]).any(axis=1) & ~_in_boxes(held, bx).any(axis=0)).tolist()
         if not pick:
             continue
@@ -121,7 +128,8 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
             ell = None if e.primary is None else e.primary.ellipse
             broad = (2.0 * max(ell.semi_axes) >= BROAD_ISOPHOTE_REL * narrow if ell is not None
                      else not e.ok and min(bx[i, 1] - bx[i, 0], bx[i, 3] - bx[i, 2]) < widest)
-            kept = e.ok or (rig and splittable(e, det.gray, (r.row0, r.col0)))  # (det.gray: the region r's)
+            # (det.gray: the region r's; a weak twin, ok where the rig's step confirms it)
+            kept = e.ok or e.status == WEAK_TWIN or (rig and splittable(e, det.gray, (r.row0, r.col0)))
             if kept and not seen and (e.primary is not None or cut[i]) and broad:
                 ests.append(e)
                 cands.append(wide.candidates[i])
@@ -135,6 +143,19 @@ def with_broad_lobes(frame: _Frame, img: np.ndarray, r: Roi, lights, done: list,
     return [ests[i] for i in order], dataclasses.replace(det, candidates=[cands[i] for i in order])
 
 
+def _twins_together(boxes: np.ndarray, passed: np.ndarray, twins: np.ndarray) -> np.ndarray:
+    """The ``boxes`` (N, 4) whose tops ``passed``, each group that ``twins`` (N, N) links as one box that holds
+    them all: a weak top passes the crop's checks for its twin only where the crop holds both."""
+    group = np.arange(len(boxes))
+    for k, j in zip(*np.nonzero(twins)):
+        group[group == group[j]] = group[k]
+    out = []
+    for g in np.unique(group[passed]).tolist():
+        b = boxes[group == g]
+        out.append([b[:, 0].min(), b[:, 1].max(), b[:, 2].min(), b[:, 3].max()])
+    return np.array(out, boxes.dtype).reshape(-1, 4)
+
+
 def _aligned_crop(box: np.ndarray, margin: int, grid: int, shape: tuple[int, int]) -> Roi:
     """The box ``(row0, row1, col0, col1)`` widened by ``margin`` px, its corners moved out to multiples
     of ``grid`` px and clipped to ``shape`` (H, W)."""
@@ -145,10 +166,13 @@ def _aligned_crop(box: np.ndarray, margin: int, grid: int, shape: tuple[int, int
 
 
 def _specular_tops(frame: _Frame, sub: np.ndarray, gray: np.ndarray, boxes: np.ndarray, side: int,
-                   verifier: tuple) -> np.ndarray:
-    """bool (N,): whether the brightest pixel of ``gray`` in each box ``(row0, row1, col0, col1)`` of ``sub``
-    passes the colour and height checks (:func:`~simtest.reconstruct.verify.bp_checks`) on a background
-    square of ``side`` px; ``verifier``: the checks' ``(gray, grey, noise)`` of the frame."""
+                   verifier: tuple, lights=None, origin=(0, 0)) -> tuple[np.ndarray, np.ndarray]:
+    """``(passed, twins)``: bool (N,), whether the brightest pixel of ``gray`` in each box ``(row0, row1, col0,
+    col1)`` of ``sub`` passes the colour and height checks (:func:`~simtest.reconstruct.verify.bp_checks`) on a
+    background square of ``side`` px; bool (N, N), ``twins[k, j]`` where box k's top, too weak alone, passes for
+    box j's: a white top where the rig of separate ``lights`` puts another guide's highlight
+    (:func:`~simtest.reconstruct.rig_pairs.rig_twins`; ``origin``: ``sub``'s (u, v) in the image).
+    ``verifier``: the checks' ``(gray, grey, noise)`` of the frame."""
     bps = np.empty((len(boxes), 2), np.float64)
     for k, (r0, r1, c0, c1) in enumerate(boxes.tolist()):
         row, col = np.unravel_index(int(np.argmax(gray[r0:r1, c0:c1])), (r1 - r0, c1 - c0))
@@ -156,6 +180,19 @@ def _specular_tops(frame: _Frame, sub: np.ndarray, gray: np.ndarray, boxes: np.n
     gray_v, grey_v, noise_v = verifier
     if gray_v.shape != sub.shape[:2]:  # a region of the frame: its own luma and noise
         gray_v, noise_v = gray, noise_sigma(gray)
-    fails = bp_checks(sub, gray_v, bps, np.zeros(len(bps), bool), full_scale=frame.full_scale, noise=noise_v,
-                      grey=grey_v, response=frame.response, background_px=side)
-    return np.array([f is None for f in fails], dtype=bool)
+    n, twins, links = len(bps), None, np.zeros((len(bps), len(bps)), bool)
+    if lights is not None and lights.has_separate_lights and n > 1:
+        # each BP's wander: its distance from its box's centre, as the first pass takes it from its region's
+        wander = np.hypot(bps[:, 0] - (boxes[:, 2] + boxes[:, 3] - 1) / 2,
+                          bps[:, 1] - (boxes[:, 0] + boxes[:, 1] - 1) / 2)
+        at = bps + np.asarray(origin, np.float64)
+
+        def twins(pool, which):
+            for k in np.flatnonzero(which).tolist():
+                for j in np.flatnonzero(pool).tolist():
+                    links[k, j] = j != k and bool(rig_twins(frame.camera, lights.positions, at[[k, j]],
+                                                            [False, True], wander[[k, j]], [True, False])[0])
+            return links.any(axis=1)
+    fails = bp_checks(sub, gray_v, bps, np.zeros(n, bool), full_scale=frame.full_scale, noise=noise_v,
+                      grey=grey_v, response=frame.response, background_px=side, twins=twins)
+    return np.array([f is None for f in fails], dtype=bool), links
