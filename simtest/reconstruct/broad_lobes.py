@@ -22,7 +22,7 @@ from simtest.reconstruct.frame_pass import detected, frame_pass
 from simtest.reconstruct.frame_prep import _Frame
 from simtest.reconstruct.light_fits import _offset_rig
 from simtest.reconstruct.rig_lobes import splittable
-from simtest.reconstruct.rig_pairs import rig_twins
+from simtest.reconstruct.rig_pairs import box_wander_px, rig_twins
 from simtest.reconstruct.verify import WEAK_TWIN, bp_checks
 
 __all__ = ["with_broad_lobes"]
@@ -182,9 +182,7 @@ def _specular_tops(frame: _Frame, sub: np.ndarray, gray: np.ndarray, boxes: np.n
         gray_v, noise_v = gray, noise_sigma(gray)
     n, twins, links = len(bps), None, np.zeros((len(bps), len(bps)), bool)
     if lights is not None and lights.has_separate_lights and n > 1:
-        # each BP's wander: its distance from its box's centre, as the first pass takes it from its region's
-        wander = np.hypot(bps[:, 0] - (boxes[:, 2] + boxes[:, 3] - 1) / 2,
-                          bps[:, 1] - (boxes[:, 0] + boxes[:, 1] - 1) / 2)
+        wander = box_wander_px(bps, boxes)  # (as the first pass takes it from its region's box)
         at = bps + np.asarray(origin, np.float64)
 
         def twins(pool, which):

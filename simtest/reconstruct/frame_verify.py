@@ -13,7 +13,7 @@ from simtest.reconstruct.assemble import SpecularityEstimate, _replaced
 from simtest.reconstruct.detect import background_side_px, luma, noise_sigma
 from simtest.reconstruct.failures import OK
 from simtest.reconstruct.frame_prep import _Frame, _is_gray
-from simtest.reconstruct.rig_pairs import rig_twins
+from simtest.reconstruct.rig_pairs import box_wander_px, rig_twins
 from simtest.reconstruct.verify import WEAK_TWIN, assess, bp_checks, confidence, seed_opening, verdict
 
 
@@ -39,9 +39,7 @@ def _early_checks(frame: _Frame, det, bps_arr: np.ndarray, fitted: np.ndarray,
     twins = None
     if lights is not None and lights.has_separate_lights and len(fk) > 1:
         cands = [det.candidates[k] for k in fk.tolist()]
-        # the BP's distance from its region's box centre (both in the detection's coordinates)
-        wander = np.array([np.hypot(c.bp_uv[0] - (c.bbox.col0 + c.bbox.col1 - 1) / 2,
-                                    c.bp_uv[1] - (c.bbox.row0 + c.bbox.row1 - 1) / 2) for c in cands])
+        wander = box_wander_px([c.bp_uv for c in cands], [tuple(c.bbox) for c in cands])  # (detection's coordinates)
         bps_f = bps_arr[fk]
 
         def twins(pool, which):

@@ -30,7 +30,7 @@ from simtest.reconstruct.isophote import polygon_contains
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves", "pair_starts",
            "guide_specular_points", "patch_specular_points", "other_lobe_centres", "pair_plane", "pair_partners",
-           "encloses_only_partners", "bp_wander_px", "estimate_wander_px", "rig_twins"]
+           "encloses_only_partners", "bp_wander_px", "box_wander_px", "estimate_wander_px", "rig_twins"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
 DEPTH_SAMPLES = 256
@@ -205,6 +205,14 @@ def estimate_wander_px(est) -> float:
     """:func:`bp_wander_px` of an estimate's BP from its closed primary isophote; 0 without one."""
     p = est.primary
     return bp_wander_px(est.bp_px, p.points_uv) if p is not None and p.closed and p.points_uv is not None else 0.0
+
+
+def box_wander_px(bps_uv, boxes) -> np.ndarray:
+    """(N,): each BP's distance (px) from the centre of its region's box ``(row0, row1, col0, col1)`` (N, 4), both
+    in one frame's coordinates: the wander of a BP whose lobe has no closed isophote yet (:func:`rig_twins`)."""
+    bps = np.asarray(bps_uv, np.float64).reshape(-1, 2)
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    return np.hypot(bps[:, 0] - (b[:, 2] + b[:, 3] - 1) / 2, bps[:, 1] - (b[:, 0] + b[:, 1] - 1) / 2)
 
 
 def bp_wander_px(bp_uv, polygon_uv) -> float:
