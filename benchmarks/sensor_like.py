@@ -42,7 +42,7 @@ from simtest.bench import BenchResult
 from simtest.harness.metrics import MATCH_PX
 
 __all__ = ["bench_sensor_like", "bench_sensor_like_coded_noise", "bench_sensor_like_near", "drawn_frame", "sensor_frame",
-           "score", "write_frame"]
+           "false_oks", "score", "write_frame"]
 
 #: Root seed of the held-out frames (``simtest.decisions.DATA["sensor-like-independent"]``).
 ROOT_SEED = 20261201
@@ -209,10 +209,23 @@ def score(specs: list[dict], truth: np.ndarray, normal: np.ndarray) -> list[tupl
             rows.append(("not_detected", None))
             continue
         s = specs[k]
-        aware = s["status"] == "ok" and s["normal"] is not None and s["normal_from"] not in ("bp_ray", "isophote")
-        err = float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(s["normal"], normal))))))) if aware else None
+        err = float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(s["normal"], normal))))))) if _aware(s) else None
         rows.append((s["status"], err))
     return rows
+
+
+def false_oks(specs: list[dict], truth: np.ndarray) -> int:
+    """The rows that give the user a light-aware ``ok`` normal (as :func:`score` counts one) with their BP farther
+    than :func:`score`'s match radius from every true highlight: a normal where the plane shows no highlight (the
+    frame's true highlights are its guides' specular points, ``truth`` (k, 2) px)."""
+    radius = min(MATCH_PX, 0.5 * float(np.linalg.norm(truth[0] - truth[1])))
+    return sum(1 for s in specs if _aware(s) and float(np.linalg.norm(np.asarray(truth, float) - s["bp_px"],
+                                                                       axis=1).min()) > radius)
+
+
+def _aware(spec: dict) -> bool:
+    """Whether an estimate gives the user an ``ok`` light-aware normal (not the BP ray's nor the isophotes')."""
+    return spec["status"] == "ok" and spec["normal"] is not None and spec["normal_from"] not in ("bp_ray", "isophote")
 
 
 def drawn_frame(root: int, index: int, ranges: dict | None = None) -> tuple:
@@ -236,7 +249,7 @@ def write_frame(folder: Path, frame: np.ndarray, camera: dict, meta: dict) -> Pa
     return path
 
 
-def _frame(args) -> tuple[list, float]:
+def _frame(args) -> tuple[list, float, int]:
     i, folder, ranges, root = args
     frame, camera, normal, truth, meta = drawn_frame(root, i, ranges)
     sub = folder / f"frame{i:03d}"
@@ -250,7 +263,7 @@ def _frame(args) -> tuple[list, float]:
     if proc.returncode != 0:
         raise RuntimeError(f"frame {args[0]}: simtest reconstruct failed: {proc.stderr.strip()[-500:]}")
     specs = json.loads((sub / "out" / "estimates.json").read_text())["specularities"]
-    return score(specs, truth, normal), wall
+    return score(specs, truth, normal), wall, false_oks(specs, truth)
 
 
 def bench_sensor_like(repeat: int = 3) -> list[BenchResult]:
@@ -265,7 +278,8 @@ def bench_sensor_like(repeat: int = 3) -> list[BenchResult]:
     -------
     list of simtest.bench.BenchResult
         The share of true highlights without an ``ok`` light-aware normal (target 0.10), the median error of
-        those normals (deg, target 0.5), and the wall seconds of a frame's command (no target).
+        those normals (deg, target 0.5), the light-aware ``ok`` normals per frame where no true highlight is
+        (:func:`false_oks`, no target) and the wall seconds of a frame's command (no target).
     """
     return _bench("sensor_like", repeat, RANGES, ROOT_SEED, (0.10, 0.5))
 
@@ -285,7 +299,7 @@ def _bench(section: str, repeat: int, ranges: dict, root: int, targets) -> list[
     frames = FRAMES_PER_REPEAT * min(5, max(1, int(repeat)))
     with tempfile.TemporaryDirectory(prefix="simtest-sensor-like-") as tmp, ThreadPoolExecutor(2) as pool:
         done = list(pool.map(_frame, [(i, Path(tmp), ranges, root) for i in range(frames)]))
-    rows = [r for frame_rows, _ in done for r in frame_rows]
+    rows = [r for frame_rows, _, _ in done for r in frame_rows]
     errs = np.array([e for _, e in rows if e is not None])
     statuses = ", ".join(f"{k} {v}" for k, v in Counter(s for s, e in rows if e is None).most_common())
     n = len(rows)
@@ -297,6 +311,9 @@ def _bench(section: str, repeat: int, ranges: dict, root: int, targets) -> list[
         BenchResult(section, "median error of the light-aware normals", float(np.median(errs)) if len(errs)
                     else float("nan"), "deg", targets[1], None, f"n {len(errs)}; {within}; max {errs.max():.3g} deg"
                     if len(errs) else ""),
+        BenchResult(section, "light-aware ok normals where no true highlight is, per frame",
+                    float(np.mean([f for *_, f in done])), "", None, None,
+                    f"{sum(f for *_, f in done)} in {frames} frames (BP beyond the match radius of both)"),
         BenchResult(section, "simtest reconstruct per frame, wall (two at a time)",
-                    float(np.median([w for _, w in done])), "s", None, float(min(w for _, w in done))),
+                    float(np.median([w for _, w, _ in done])), "s", None, float(min(w for _, w, _ in done))),
     ]

@@ -60,6 +60,21 @@ def test_scoring_takes_the_nearest_estimate_within_the_radius_and_only_light_awa
     assert sensor_like.score([], truth, n) == [("not_detected", None)] * 2
 
 
+def test_a_false_ok_is_a_light_aware_ok_normal_beyond_the_match_radius_of_every_true_highlight():
+    truth = np.array([[100.0, 100.0], [140.0, 100.0]])  # 40 px apart: the radius is 20 px
+    ok = {"status": "ok", "normal": [0.0, 0.0, -1.0], "normal_from": "rig_pair"}
+    on_truth = {**ok, "bp_px": [139.0, 101.0]}
+    between = {**ok, "bp_px": [120.5, 100.0]}  # 20.5 px from both: no true highlight's
+    far = {**ok, "bp_px": [300.0, 50.0]}
+    assert sensor_like.false_oks([on_truth], truth) == 0
+    assert sensor_like.false_oks([on_truth, between, far], truth) == 2
+    # the BP ray's or the isophotes' normal, or a rejected row, is no light-aware normal given to the user
+    others = [{**far, "normal_from": "bp_ray"}, {**far, "normal_from": "isophote"}, {**far, "status": "cluster"},
+              {**far, "normal": None}]
+    assert sensor_like.false_oks(others, truth) == 0
+    assert sensor_like.false_oks([], truth) == 0
+
+
 def test_coded_noise_frames_are_the_sensor_order_frames_with_a_noisy_plateau():
     # the coded-noise section draws the same scene as the sensor order (same geometry, lobe, exposure,
     # truth) and differs only where the noise goes: after the clip a clipped plateau holds pixels below
