@@ -644,6 +644,13 @@ BP_PLACE_SIGMA_PX = decision(
     "The BP's own error where rule 5 states a sigma: a BP on the pixel grid errs uniformly within "
     "+-0.5 px per axis, an RMS of 1 / sqrt(12); a plateau's centroid does better.",
     basis="physics", stage=_R)
+TOP_CORE_PX = decision(
+    "TOP_CORE_PX", 3, "px (side of a square)",
+    "A clipped top pairs with another guide's (rig_pair) only where it holds a square of this side, the smallest "
+    "with an interior pixel: a lobe's top is its level set above the clip, a disc once it holds a few pixels; a "
+    "noise that lifts a lobe's flank over the level (added after the clip, JPEG's ringing) leaves specks one or "
+    "two pixels across. Such a speck paired with a whole top put rig_pair's points 52 and 72 px off the specular "
+    "points (CODED_NOISE root 9 frame 39, tuning: 9.5 deg off at a stated 0.165 deg).", basis="physics", stage=_R)
 TOPS_PLACE_SIGMA_PX = decision(
     "TOPS_PLACE_SIGMA_PX", 1.0, "px per image axis (1-sigma)",
     "How far a clipped top's centroid may lie from its guide's specular point where two guides' "

@@ -43,8 +43,8 @@ wander, or inside the row's closed isophote): the row gets that plane as ``rig_p
 sigma's), its depth where its ray meets the plane, the plane's sigma. One plane images every guide's highlight; two
 highlights at the points it predicts are its evidence.
 
-Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each of at least
-:data:`~simtest.decisions.MIN_AREA_PX`) where the rig pairs them gives one row per top at its centroid, with the plane
+Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each holding a
+:data:`~simtest.decisions.TOP_CORE_PX` square) where the rig pairs them gives one row per top at its centroid, with the plane
 the two fix as a stereo pair (``rig_pair``, :func:`~simtest.reconstruct.rig_pairs.pair_plane`).
 """
 
@@ -58,9 +58,9 @@ import numpy as np
 from simtest._lazy import require
 from simtest._threads import one_thread_each
 from simtest.decisions import (CLIP_LUMA_MARGIN_REL, DEPTH_RELEASE_REL_SIGMA, FUSED_LOBE_LEVEL, FUSED_TOPS_STRETCH,
-                               FUSED_TOPS_WAIST_PX, MIN_AREA_PX, PAIR_DEPTH_MAX_MM, PAIR_TOL_PX, PEAK_SMOOTH_GAP_SHARE,
-                               PEAK_SMOOTH_SIGMA_PX, PEAK_TOP_SHARE, SIGNIFICANCE_MIN, TOP_CORE_SHARE,
-                               TOPS_PLACE_SIGMA_PX)
+                               FUSED_TOPS_WAIST_PX, PAIR_DEPTH_MAX_MM, PAIR_TOL_PX, PEAK_SMOOTH_GAP_SHARE,
+                               PEAK_SMOOTH_SIGMA_PX, PEAK_TOP_SHARE, SIGNIFICANCE_MIN, TOP_CORE_PX,
+                               TOP_CORE_SHARE, TOPS_PLACE_SIGMA_PX)
 from simtest.geometry.angles import angle_between_deg
 from simtest.reconstruct._pixels import Roi, uv_to_rc
 from simtest.reconstruct.assemble import SpecularityEstimate
@@ -353,8 +353,8 @@ def _row(est, camera, uv: np.ndarray, what: str, how: str, **fields):
 
 
 def _tops_pair(gray: np.ndarray, region, camera, rig, at_clip: bool = False):
-    """The region's two largest clipped tops (of at least :data:`~simtest.decisions.MIN_AREA_PX`, the smallest highlight
-    detection takes: one pixel clipped by noise on a lobe's tail is no specular point) where the rig pairs them:
+    """The region's two largest clipped tops (each holding a :data:`~simtest.decisions.TOP_CORE_PX` square: pixels
+    a noise lifts over the level on a lobe's flank are no specular point) where the rig pairs them:
     ``(centroids (2, 2), labels, the two labels, pair_plane's result)``, or None. The tops within
     :data:`~simtest.decisions.CLIP_LUMA_MARGIN_REL` of the peak (JPEG's broken tops); ``at_clip``, those at the peak
     where the margin's top narrows between them (:func:`_waisted`): two lobes near the scope whose tails sum to within
@@ -367,7 +367,9 @@ def _paired_tops(tops_mask: np.ndarray, region, camera, rig):
     """:func:`_tops_pair` of the tops ``tops_mask`` (bool, ROI indices)."""
     mask, r0, c0 = region
     _, labels, stats, centroids = cv2.connectedComponentsWithStats(tops_mask.astype(np.uint8), connectivity=8)
-    tops = 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= MIN_AREA_PX)
+    # the components that hold a TOP_CORE_PX square (a pixel whose square lies in the tops)
+    core = cv2.erode(tops_mask.astype(np.uint8), np.ones((TOP_CORE_PX, TOP_CORE_PX), np.uint8)) > 0
+    tops = np.setdiff1d(labels[core], [0])
     if len(tops) < 2:
         return None
     two = tops[np.argsort(-stats[tops, cv2.CC_STAT_AREA], kind="stable")[:2]]
