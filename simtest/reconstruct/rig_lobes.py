@@ -44,8 +44,8 @@ sigma's), its depth where its ray meets the plane, the plane's sigma. One plane 
 highlights at the points it predicts are its evidence.
 
 Pair. A clipped candidate whose joint fit gives no rows at its two largest clipped tops (each holding a
-:data:`~simtest.decisions.TOP_CORE_PX` square) where the rig pairs them gives one row per top at its centroid, with the plane
-the two fix as a stereo pair (``rig_pair``, :func:`~simtest.reconstruct.rig_pairs.pair_plane`).
+:data:`~simtest.decisions.TOP_CORE_PX` square) where the rig pairs them gives one row per top at its centroid, with
+the plane the two fix as a stereo pair (``rig_pair``, :func:`~simtest.reconstruct.rig_pairs.pair_plane`).
 """
 
 from __future__ import annotations
@@ -366,9 +366,9 @@ def _tops_pair(gray: np.ndarray, region, camera, rig, at_clip: bool = False):
 def _paired_tops(tops_mask: np.ndarray, region, camera, rig):
     """:func:`_tops_pair` of the tops ``tops_mask`` (bool, ROI indices)."""
     mask, r0, c0 = region
-    _, labels, stats, centroids = cv2.connectedComponentsWithStats(tops_mask.astype(np.uint8), connectivity=8)
+    _, labels, stats, centroids = cv2.connectedComponentsWithStats(top8 := tops_mask.astype(np.uint8), connectivity=8)
     # the components that hold a TOP_CORE_PX square (a pixel whose square lies in the tops)
-    core = cv2.erode(tops_mask.astype(np.uint8), np.ones((TOP_CORE_PX, TOP_CORE_PX), np.uint8)) > 0
+    core = cv2.erode(top8, np.ones((TOP_CORE_PX, TOP_CORE_PX), np.uint8)) > 0
     tops = np.setdiff1d(labels[core], [0])
     if len(tops) < 2:
         return None
