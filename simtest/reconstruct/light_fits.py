@@ -554,7 +554,8 @@ def _guarded(name: str, fit, *args, **kwargs) -> LightAwareEstimate:
 
 
 def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highlight=None,
-                     fit_rejected: bool = False, workers: int = 1, plane_only=(), weak=(), **kwargs) -> list:
+                     fit_rejected: bool = False, workers: int = 1, plane_only=(), deferred=None, weak=(),
+                     **kwargs) -> list:
     """The estimates with their light-aware results attached (``light_aware``).
 
     Nothing runs without a rig or with every light at the camera centre. Only accepted highlights
@@ -571,7 +572,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     rig : LightRig or None
         The scope's lights.
     on_highlight : callable, optional
-        Called as ``on_highlight(done, total)`` after each highlight's fits.
+        Called as ``on_highlight(done, total)`` after each highlight's fits (``total`` grows where a deferred
+        piece is fitted after all).
     fit_rejected : bool, optional
         Fit the rejected candidates too.
     workers : int
@@ -579,6 +581,10 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     plane_only : collection of int
         Indexes of rejected candidates fitted too, with :data:`PLANE_ONLY`
         (:func:`~simtest.reconstruct.rig_lobes.fused_lobe_candidates`).
+    deferred : dict of int to int, optional
+        Of the ``plane_only`` indexes, those fitted only where the fit of another (the value) is no ok plane
+        with its distance: pieces of one fused top (:func:`~simtest.reconstruct.rig_lobes.fused_top_groups`).
+        The others get no fits (``light_aware`` ``{}``).
     weak : collection of int
         Indexes of the estimates ok only as weak twins. A highlight in a glint field (:func:`glint_fields`)
         gets ``photometric_fit`` alone, ``glint_field`` (unless ``quadric`` or ``cubic`` is True).
@@ -626,26 +632,45 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     for i in sorted(skipped):
         if out[i].light_aware is None:
             out[i] = dataclasses.replace(out[i], light_aware={})
+    later = {i: j for i, j in (deferred or {}).items() if i in todo and j in todo and j not in (deferred or {})}
+    first = [i for i in todo if i not in later]
     # one BLAS thread here as in the workers: several threads' sums differ in their last bits
     with one_thread_each():
-        if workers > 1 and len(todo) > 1:
-            for name in ("scipy.optimize", "scipy.ndimage"):  # imported once here, not in each worker
-                require(name)
-            with worker_pool(min(workers, len(todo)), initializer=_fit_context,
-                             initargs=(image, camera, rig, kwargs)) as pool:
-                futures = {pool.submit(_fits_in_context, out[i], jobs[i]): i for i in todo}
-                for done, fut in enumerate(as_completed(futures), 1):
-                    i = futures[fut]
-                    out[i] = dataclasses.replace(out[i], light_aware=fut.result())
-                    if on_highlight is not None:
-                        on_highlight(done, len(todo))
-            return out
-        for done, i in enumerate(todo, 1):
-            out[i] = dataclasses.replace(out[i], light_aware=light_aware_estimates(image, out[i], camera,
-                                                                                  rig, **(kwargs | jobs[i])))
-            if on_highlight is not None:
-                on_highlight(done, len(todo))
+        _run_fits(image, out, camera, rig, kwargs, jobs, first, workers, on_highlight, len(first))
+        again = [i for i in sorted(later) if not _plane((out[later[i]].light_aware or {}).get("photometric_fit"))]
+        _run_fits(image, out, camera, rig, kwargs, jobs, again, workers, on_highlight, len(first) + len(again),
+                  len(first))
+    for i in set(later).difference(again):
+        out[i] = dataclasses.replace(out[i], light_aware={})
     return out
+
+
+def _plane(fit) -> bool:
+    """Whether a light-aware fit is ok with its plane's distance."""
+    return fit is not None and fit.ok and fit.distance_mm is not None
+
+
+def _run_fits(image, out: list, camera, rig, kwargs: dict, jobs: dict, rows: list, workers: int, on_highlight,
+              total: int, done: int = 0) -> None:
+    """The light-aware fits of ``out``'s ``rows`` with their ``jobs``' arguments over ``kwargs``, in ``workers``
+    processes (1: here), into ``out`` in place; ``on_highlight(done, total)`` after each, counting on from ``done``."""
+    if workers > 1 and len(rows) > 1:
+        for name in ("scipy.optimize", "scipy.ndimage"):  # imported once here, not in each worker
+            require(name)
+        with worker_pool(min(workers, len(rows)), initializer=_fit_context,
+                         initargs=(image, camera, rig, kwargs)) as pool:
+            futures = {pool.submit(_fits_in_context, out[i], jobs[i]): i for i in rows}
+            for done, fut in enumerate(as_completed(futures), done + 1):
+                i = futures[fut]
+                out[i] = dataclasses.replace(out[i], light_aware=fut.result())
+                if on_highlight is not None:
+                    on_highlight(done, total)
+        return
+    for done, i in enumerate(rows, done + 1):
+        out[i] = dataclasses.replace(out[i], light_aware=light_aware_estimates(image, out[i], camera,
+                                                                              rig, **(kwargs | jobs[i])))
+        if on_highlight is not None:
+            on_highlight(done, total)
 
 
 def glint_fields(out: list, rows: list, rig: LightRig, roi_scale: float, shape, weak=()) -> dict[int, str]:

@@ -25,14 +25,15 @@ import math
 
 import numpy as np
 
-from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, PAIR_DEPTH_MAX_MM,
-                               PAIR_DEPTH_MIN_MM, PAIR_TOL_PX)
+from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, LIGHT_AWARE_ROI_SCALE,
+                               PAIR_DEPTH_MAX_MM, PAIR_DEPTH_MIN_MM, PAIR_TOL_PX)
 from simtest.geometry.lights import Light, LightRig
 from simtest.tolerances import TOL
 from simtest.reconstruct.curved_lobes import curved_lobe_rows
 from simtest.reconstruct.detect import default_full_scale
 from simtest.reconstruct.detect_pixels import luma
-from simtest.reconstruct.light_fits import _offset_rig, fit_arguments, with_light_aware
+from simtest.reconstruct._pixels import Roi
+from simtest.reconstruct.light_fits import _offset_rig, _reach, fit_arguments, with_light_aware
 from simtest.reconstruct.lightaware import LightAwareEstimate, bisector, reflection_offset_deg
 from simtest.reconstruct.lightaware.model import _rays, _rig_arrays
 from simtest.reconstruct.lone_lobes import lone_fit_rows, lone_lobe_rows, lone_rival
@@ -43,7 +44,7 @@ from simtest.reconstruct.rig_lobes import (SPLIT_STATUSES, _bright_region, _insi
                                            guide_specular_points, isophote_holds, partner_rows, shared_plane_rows,
                                            split_fused_lobes, splittable)
 
-__all__ = ["centroid_normal", "light_aware_with_rig", "rig_centroid"]
+__all__ = ["centroid_normal", "fused_top_groups", "light_aware_with_rig", "rig_centroid"]
 
 
 def centroid_normal(bp_uv, camera, rig: LightRig, depth_mm: float) -> np.ndarray:
@@ -213,9 +214,11 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
                                    white_only=[estimates[i].status == "not_specular" for i in maybe])
         split = fused_lobe_candidates(gray, estimates, camera, rig,
                                       among={i for i, w in zip(maybe, white) if w or estimates[i].saturated})
+    deferred = fused_top_groups(gray, estimates, split, kwargs.get("roi_scale", LIGHT_AWARE_ROI_SCALE)) if split else {}
     fitted = with_light_aware(image, estimates, camera, rig, workers=workers, on_highlight=on_highlight,
-                              plane_only=split, weak=weak_rows, **kwargs)
-    split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=set(split), gray=gray, weak=weak_rows,
+                              plane_only=split, deferred=deferred, weak=weak_rows, **kwargs)
+    prefitted = {i for i in split if fitted[i].light_aware}  # (a deferred piece its top's fit spared has none)
+    split_rows = split_fused_lobes(image, fitted, camera, rig, prefitted=prefitted, gray=gray, weak=weak_rows,
                                    rival=lambda est, fit: lone_rival(image, est, fit, camera, rig, kwargs, gray))
     out = rig_centroid(image, partner_rows(image, split_rows, camera, rig, kwargs, gray=gray), camera, rig, gray=gray)
     out = curved_lobe_rows(image, out, camera, rig, kwargs, gray=gray)
@@ -235,6 +238,52 @@ def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, work
     out = lone_fit_rows(image, out, camera, rig, kwargs, gray=gray)
     return lone_lobe_rows(image, out, camera, rig, kwargs, gray=gray,
                           refused={k for k, e in enumerate(out) if e.bp_px is not None and tuple(e.bp_px) in weak_bps})
+
+
+def fused_top_groups(gray, estimates: list, rows, roi_scale: float = LIGHT_AWARE_ROI_SCALE) -> dict[int, int]:
+    """Of the clipped ``rows`` of ``estimates`` (rejected candidates to be split, :func:`fused_lobe_candidates`), each
+    one another covers, mapped to that one: fitted only where that one's fit fails (``deferred`` of
+    :func:`~simtest.reconstruct.light_fits.with_light_aware`). A clipped top holds no image of its own, so the maxima
+    noise leaves on it are one peak, not many, and a joint plane fit of one piece models the lobes any other's would.
+    A piece covers another whose BP lies in its bright region (:func:`~simtest.reconstruct.rig_lobes._bright_region`)
+    and whose fit's window (``roi_scale`` times its ROI's half-size about its BP) lies in its own: its fit sees every
+    pixel the other's would. The pieces covering the most others
+    come first (ties: the detector's order); a piece no first one covers is fitted too.
+
+    Parameters
+    ----------
+    gray : ndarray of shape (H, W)
+        The frame's luma.
+    estimates : list of SpecularityEstimate
+        The frame's candidates.
+    rows : sequence of int
+        The indexes of the candidates to be split.
+    roi_scale : float
+        The fits' ROI growth (:data:`~simtest.decisions.LIGHT_AWARE_ROI_SCALE`).
+
+    Returns
+    -------
+    dict of int to int
+        Each deferred piece's index, mapped to its top's first piece.
+    """
+    clipped = [i for i in rows if estimates[i].saturated and estimates[i].bp_px is not None]
+    bps = np.array([estimates[i].bp_px for i in clipped], np.float64).reshape(-1, 2)
+    rois = np.array([tuple(Roi.around(estimates[i].bp_px, _reach(estimates[i], roi_scale), gray.shape))
+                     for i in clipped], np.int64).reshape(-1, 4)  # the fits' windows: row0, row1, col0, col1
+    holds = {}
+    for k, i in enumerate(clipped):
+        region = _bright_region(gray, estimates[i])
+        within = (rois[:, [0, 2]] >= rois[k, [0, 2]]).all(axis=1) & (rois[:, [1, 3]] <= rois[k, [1, 3]]).all(axis=1)
+        holds[i] = set() if region is None else {j for j, yes in zip(clipped, _inside(region, bps) & within)
+                                                 if yes and j != i}
+    deferred: dict[int, int] = {}
+    for i in sorted(clipped, key=lambda i: (-len(holds[i]), i)):
+        if i in deferred:
+            continue
+        for j in sorted(holds[i]):
+            if j not in deferred and j != i and not any(v == j for v in deferred.values()):
+                deferred[j] = i
+    return deferred
 
 
 def _twin_confirmed(rows: list, k: int, bps: np.ndarray, reach: np.ndarray, camera, rig) -> str:

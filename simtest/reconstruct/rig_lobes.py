@@ -22,7 +22,9 @@ significant and its tops stretch along the curve, and it gives rows only where t
 as does a weak peak the height check passed for its rig twin (a twin elsewhere and both lobes here cannot both hold). A
 lobe the frame's edge cuts (its region, ``touches_border``, or its isophote, ``contour_cut``) gives its guide's row
 where its fit, ok with its distance, puts that point alone (if clipped, within ``PAIR_TOL_PX`` of its top). Rejected
-candidates on a split's points or inside its closed isophote (noise maxima on the lobes' tops) give no rows.
+candidates on a split's points or inside its closed isophote (noise maxima on the lobes' tops) give no rows; of the
+clipped pieces of one top, one is fitted, the others only where its fit fails
+(:func:`~simtest.reconstruct.rig_centroid.fused_top_groups`).
 
 Partner. An ok row whose plane fit (ok, with its distance) puts its own guide's point on its BP and another guide's on a
 rejected candidate's (each within ``PAIR_TOL_PX`` plus the BP's wander, the placing row's point also inside its closed
@@ -66,8 +68,8 @@ from simtest.reconstruct._pixels import Roi, uv_to_rc
 from simtest.reconstruct.assemble import SpecularityEstimate
 from simtest.reconstruct.detect_pixels import interior_top, luma, noise_sigma
 from simtest.reconstruct.isophote import polygon_contains
-from simtest.reconstruct.light_fits import (NOT_FITTED, PLANE_ONLY, _in_frame, _offset_rig, _reach, light_aware_estimates,
-                                           lobe_size_px)
+from simtest.reconstruct.light_fits import (NOT_FITTED, PLANE_ONLY, _in_frame, _offset_rig, _plane, _reach,
+                                           light_aware_estimates, lobe_size_px)
 from simtest.reconstruct.lightaware import LightAwareEstimate
 from simtest.reconstruct.recommend import without_guide_spread
 from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wander_px, guide_specular_points,
@@ -519,6 +521,7 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None,
     aware = np.array([e.ok and e.recommended.normal_from != "bp_ray" for e in estimates], bool)
     parts: list = []  # each candidate's rows
     splits: list = []  # (part index, its rows' BPs, the joint fit's normal sigma, the unsplit row)
+    tops: dict = {}  # part index -> a clipped unsplit row's bright region
     for i, est in enumerate(estimates):
         rows = None
         if est.ok or i in prefitted:
@@ -542,26 +545,25 @@ def split_fused_lobes(image, estimates, camera, rig, *, prefitted=(), gray=None,
             la = rows[0].light_aware
             sigma = (la.get("rig_pair") or la["photometric_fit"]).normal_sigma_deg
             splits.append((len(parts), np.array([r.bp_px for r in rows]), np.inf if sigma is None else sigma, est))
+            if est.saturated and region is not None:
+                tops[len(parts)] = region
         parts.append(rows if rows is not None else [est])
     if not splits:
         return [e for part in parts for e in part]
     _one_split_per_pair(parts, splits)
     out = [e for part in parts for e in part]
-    # a rejected candidate, or an ok one with only the BP ray, on a split's specular point or inside the split
-    # candidate's closed isophote (a maximum the noise made on the lobes' tops: one peak, not many) is that row
+    # a rejected candidate, or an ok one with only the BP ray, on a split's specular point, inside the split
+    # candidate's closed isophote or, clipped, in its bright region (a maximum the noise made on the lobes' tops: one
+    # peak, not many) is that row
     done = [k for k, _, _, _ in splits if len(parts[k]) > 1]
     sp = np.asarray([p for k, pts, _, _ in splits if k in done for p in pts], np.float64).reshape(-1, 2)
     split_rows = {id(r) for k in done for r in parts[k]}
     out_bps = np.array([e.bp_px for e in out], np.float64).reshape(-1, 2)
     near = (np.linalg.norm(out_bps[:, None] - sp[None], axis=-1) < PAIR_TOL_PX).any(axis=1) | np.any(
-        [isophote_holds(unsplit, out_bps) for k, _, _, unsplit in splits if k in done], axis=0)
+        [isophote_holds(unsplit, out_bps) for k, _, _, unsplit in splits if k in done], axis=0) | np.any(
+        [_inside(tops[k], out_bps) for k in done if k in tops], axis=0)
     return [e for e, at in zip(out, near)
             if not at or id(e) in split_rows or (e.ok and e.recommended.normal_from != "bp_ray")]
-
-
-def _plane(fit) -> bool:
-    """Whether a light-aware fit is ok with its plane's distance."""
-    return fit is not None and fit.ok and fit.distance_mm is not None
 
 
 def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarray):
