@@ -583,7 +583,7 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
         (:func:`~simtest.reconstruct.rig_lobes.fused_lobe_candidates`).
     deferred : dict of int to int, optional
         Of the ``plane_only`` indexes, those fitted only where the fit of another (the value) is no ok plane
-        with its distance: pieces of one fused top (:func:`~simtest.reconstruct.rig_lobes.fused_top_groups`).
+        with its distance: pieces of one fused top (:func:`~simtest.reconstruct.rig_centroid.fused_top_groups`).
         The others get no fits (``light_aware`` ``{}``).
     weak : collection of int
         Indexes of the estimates ok only as weak twins. A highlight in a glint field (:func:`glint_fields`)
@@ -632,7 +632,8 @@ def with_light_aware(image, estimates, camera, rig: LightRig | None, *, on_highl
     for i in sorted(skipped):
         if out[i].light_aware is None:
             out[i] = dataclasses.replace(out[i], light_aware={})
-    later = {i: j for i, j in (deferred or {}).items() if i in todo and j in todo and j not in (deferred or {})}
+    deferred = deferred or {}
+    later = {i: j for i, j in deferred.items() if i in todo and j in todo and j not in deferred}
     first = [i for i in todo if i not in later]
     # one BLAS thread here as in the workers: several threads' sums differ in their last bits
     with one_thread_each():

@@ -247,8 +247,8 @@ def fused_top_groups(gray, estimates: list, rows, roi_scale: float = LIGHT_AWARE
     noise leaves on it are one peak, not many, and a joint plane fit of one piece models the lobes any other's would.
     A piece covers another whose BP lies in its bright region (:func:`~simtest.reconstruct.rig_lobes._bright_region`)
     and whose fit's window (``roi_scale`` times its ROI's half-size about its BP) lies in its own: its fit sees every
-    pixel the other's would. The pieces covering the most others
-    come first (ties: the detector's order); a piece no first one covers is fitted too.
+    pixel the other's would. The pieces covering the most others come first (ties: the detector's order); a piece no
+    first one covers is fitted too.
 
     Parameters
     ----------
@@ -277,12 +277,13 @@ def fused_top_groups(gray, estimates: list, rows, roi_scale: float = LIGHT_AWARE
         holds[i] = set() if region is None else {j for j, yes in zip(clipped, _inside(region, bps) & within)
                                                  if yes and j != i}
     deferred: dict[int, int] = {}
+    firsts: set[int] = set()  # the pieces others wait on
     for i in sorted(clipped, key=lambda i: (-len(holds[i]), i)):
         if i in deferred:
             continue
-        for j in sorted(holds[i]):
-            if j not in deferred and j != i and not any(v == j for v in deferred.values()):
-                deferred[j] = i
+        for j in sorted(holds[i] - firsts - deferred.keys()):
+            deferred[j] = i
+            firsts.add(i)
     return deferred
 
 
