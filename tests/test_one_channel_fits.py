@@ -6,8 +6,10 @@ tries the other lobes where Phong's residual holds that pattern, and keeps one o
 pattern: a lower residual (BIC) than Phong's. A lobe that passes with a larger residual than Phong's curved
 fit is no better model; the pattern is then not the lobe's shape.
 
-Where it starts: a fit that runs off from the nominal depth, or ends without one, is tried again from
-further starts along the BP's constraint (``RETRY_START_DEPTHS``), as on three channels.
+Where it starts: a fit that runs off from the nominal depth towards the camera (a plane nearer than its start,
+or a lobe broader than any roughness gives) is tried again from further starts along the BP's constraint
+(``RETRY_START_DEPTHS``), as on three channels; one that runs off the other way (every guide's lobe on one
+point, or a lobe sharper than any roughness gives) is not: no start depth gives a plane that images it.
 """
 
 from __future__ import annotations
@@ -18,8 +20,11 @@ from hypothesis import strategies as st
 
 from _cases import bench_frame_rows
 from benchmarks import sensor_like
+from simtest.geometry.lights import Light, LightRig
+from simtest.reconstruct.lightaware import plane
 from simtest.reconstruct.lightaware.estimate import LightAwareEstimate
 from simtest.reconstruct.lightaware.plane import _choose_lobe
+from simtest.reconstruct.lightaware.solve import _H_FACTOR, _implausible, _ran_off_near
 
 #: The issue's bar for the median error of a light-aware normal on sensor-like frames, deg: each row of the
 #: pinned frames below must meet it alone (without the steps: the BP ray, no light-aware normal, or a GGX
@@ -74,3 +79,38 @@ def test_fused_lobes_filling_a_jpeg_frame_are_fitted_from_further_starts(tmp_pat
     meta, rows = bench_frame_rows(tmp_path, 7, 56, sensor_like.NEAR)
     assert meta["jpeg_quality"] is not None
     assert all(s == "ok" and e is not None and e <= ROW_MAX_DEG for s, e in rows), rows
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(1.0, 100.0), st.floats(-30.0, 30.0), st.one_of(st.none(), st.floats(-10.0, 1e6)), st.booleans())
+def test_a_run_off_towards_the_camera_is_an_implausible_fit_nearer_or_broader_than_its_start(h0, log_ratio, rough,
+                                                                                             shaded):
+    h = h0 * 10.0 ** log_ratio
+    near = _ran_off_near(h, h0, rough, shaded)
+    if near:
+        # only an implausible fit ran off, and a nearer plane of that roughness ran off the same way
+        assert _implausible(h, h0, rough, shaded)
+        assert _ran_off_near(h / 2.0, h0, rough, shaded)
+    if h > h0 * _H_FACTOR:  # beyond the range away from the camera: never a run-off towards it
+        assert not near
+    if h < h0 / _H_FACTOR:
+        assert near
+    assert not _ran_off_near(float("inf"), h0, rough, shaded) and not _ran_off_near(float("nan"), h0, rough, shaded)
+
+
+def test_a_glint_sharper_than_any_planes_lobe_is_not_fitted_again_from_further_starts(monkeypatch):
+    # One channel, two guides 8 mm apart: a glint of 0.7 px (a Gaussian over a flat background, 1 % noise), which
+    # no plane at a plausible depth images (its lobe is every guide's, sharper than the sharpest roughness). The
+    # fit runs off away from the camera and is not retried from RETRY_START_DEPTHS starts: the default
+    # colonoscope frame spent half its fits' time on such retries of fold crests' glints, none of them placed.
+    tries = []
+    fit_lobes = plane._fit_lobes
+    monkeypatch.setattr(plane, "_fit_lobes", lambda *a: tries.append(a[-1].n_start_depths) or fit_lobes(*a))
+    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    rig = LightRig((Light((4.0, 0.0, 0.0)), Light((-4.0, 0.0, 0.0))))
+    vv, uu = np.mgrid[0:41, 0:41] + np.array([180.0, 280.0])[:, None, None]
+    values = 40.0 + 180.0 * np.exp(-((uu - 300.0) ** 2 + (vv - 200.0) ** 2) / (2 * 0.7**2))
+    values += np.random.default_rng(0).normal(0.0, 1.8, values.shape)
+    fit = plane.photometric_fit(values, (280.0, 180.0), (300.0, 200.0), K, rig)
+    assert fit.status == "not_converged" and not fit.run_off_near, fit.detail
+    assert tries == [0], tries

@@ -101,6 +101,10 @@ class LightAwareEstimate:
         angle between its normal and the normal of a lobe lit by one guide alone at the BP, degrees,
         already added to ``normal_sigma_deg`` in quadrature
         (:func:`~simtest.reconstruct.recommend.guide_spread_deg`).
+    run_off_near : bool
+        A ``not_converged`` :func:`photometric_fit` that ran off towards the camera (its distance below its
+        start's range, or a lobe broader than any roughness gives): one channel's fit is then tried again from
+        nearer starts (:func:`~simtest.reconstruct.lightaware.solve._ran_off_near`).
     """
 
     estimator: str
@@ -127,6 +131,7 @@ class LightAwareEstimate:
     curvature_shift_deg: float | None = None
     guide_spread_deg: float | None = None
     fitted_distance_mm: float | None = None
+    run_off_near: bool = False
 
     @property
     def ok(self) -> bool:

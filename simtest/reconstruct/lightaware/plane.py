@@ -25,7 +25,7 @@ from simtest.reconstruct.lightaware.model import _normal_derivs
 from simtest.reconstruct.lightaware.plane_model import PlaneModel
 from simtest.reconstruct.lightaware.plane_sigma import PlaneVerdict
 from simtest.reconstruct.lightaware.plane_solve import solve_plane, start_planes
-from simtest.reconstruct.lightaware.solve import _finish, _implausible, _start
+from simtest.reconstruct.lightaware.solve import _finish, _implausible, _ran_off_near, _start
 
 
 #: Starts along the BP's constraint of ``photometric_fit``'s second try, on three channels or one
@@ -72,7 +72,8 @@ class FitSettings:
         Soft margin of a robust loss, relative to the ROI's maximum.
     n_start_depths : int or None
         Further starts along the BP's constraint (nominal/8 to nominal*8), the least cost kept. None:
-        0, and where that fit runs off (RGB: or has no depth), once more with :data:`RETRY_START_DEPTHS` starts.
+        0, and where that fit runs off towards the camera (RGB: runs off either way or has no depth), once more
+        with :data:`RETRY_START_DEPTHS` starts (:func:`~simtest.reconstruct.lightaware.solve._ran_off_near`).
     supersample : int
         s x s point samples per pixel, averaged (1: the value at the pixel centre).
     max_pixels : int or None
@@ -250,7 +251,7 @@ def _fit_projections(values, origin_uv, bp_uv, camera, rig, s: FitSettings) -> L
             *fit, replace(s, projection="darkest_channel", two_channels=False)))
     first = _fit_lobes(*fit, replace(s, n_start_depths=0))
     best = first
-    if first.status == "not_converged" or (rgb and first.status == "depth_not_observable"):
+    if (rgb and first.status in ("not_converged", "depth_not_observable")) or first.run_off_near:
         again = _fit_lobes(*fit, replace(s, n_start_depths=RETRY_START_DEPTHS))
         if again.has_normal and (not first.has_normal or first.residual_rms is None
                                  or (again.residual_rms is not None and again.residual_rms < first.residual_rms)):
@@ -322,7 +323,8 @@ def _fit_plane(values, origin_uv, bp_uv, camera, rig, s: FitSettings, colour=Non
         h_hat, rough_hat = float(np.exp(x[2])), m.phong_n(x[3])
     bad = _implausible(h_hat, h0, rough_hat, shaded=s.diffuse)
     if bad:
-        return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev, projection=how)
+        return LightAwareEstimate(name, "not_converged", bad, n_evaluations=nfev, projection=how,
+                                  run_off_near=_ran_off_near(h_hat, h0, rough_hat, shaded=s.diffuse))
     if np.any(n_hat @ m.rig_arr[0].T + h_hat <= 0):
         return LightAwareEstimate(name, "light_behind_plane", f"h = {h_hat:.4g} mm", n_evaluations=nfev)
     verdict = PlaneVerdict(m, rig, x, n0, e1, e2, n_hat, h_hat, rough_hat, how, floor_level)
