@@ -102,9 +102,8 @@ class LightAwareEstimate:
         already added to ``normal_sigma_deg`` in quadrature
         (:func:`~simtest.reconstruct.recommend.guide_spread_deg`).
     run_off_near : bool
-        A ``not_converged`` :func:`photometric_fit` that ran off towards the camera (its distance below its
-        start's range, or a lobe broader than any roughness gives): one channel's fit is then tried again from
-        nearer starts (:func:`~simtest.reconstruct.lightaware.solve._ran_off_near`).
+        A ``not_converged`` :func:`photometric_fit` that ran off towards the camera, which one channel's fit tries
+        again from further starts (:func:`~simtest.reconstruct.lightaware.solve._ran_off_near`).
     """
 
     estimator: str

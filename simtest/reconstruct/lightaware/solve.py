@@ -271,18 +271,13 @@ def _implausible(h_hat: float, h0: float, roughness: float | None, shaded: bool 
 
 
 def _ran_off_near(h_hat: float, h0: float, roughness: float | None, shaded: bool = False) -> bool:
-    """Whether an implausible fit (:func:`_implausible`) ran off towards the camera: its distance below its
-    start's range, or (its distance within it) its lobe broader than the roughness range allows. A plane nearer
-    than its start images a wider lobe, so starts nearer along the BP's constraint may reach it; a fit that ran
-    off the other way (its distance to infinity, where every guide's lobe falls on one point, or a lobe sharper
-    than any roughness gives) read one lobe where a plane at any depth shows each guide's, which no start
-    depth changes."""
-    if not np.isfinite(h_hat):
-        return False
-    if h_hat < h0 / _H_FACTOR:
-        return True
+    """Whether an implausible fit ran off towards the camera: its distance below its start's range, or within it a
+    lobe broader than the roughness range allows. A nearer plane images a wider lobe: nearer starts may reach it.
+    One that ran off the other way (distance to infinity, every guide's lobe on one point, or a lobe sharper than
+    any roughness) read one lobe where a plane at any depth shows each guide's: no start depth changes that."""
     lo = (_ROUGHNESS_RANGE_SHADED if shaded else _ROUGHNESS_RANGE)[0]
-    return h_hat <= h0 * _H_FACTOR and roughness is not None and bool(roughness < lo)
+    return bool(np.isfinite(h_hat) and (h_hat < h0 / _H_FACTOR or (
+        h_hat <= h0 * _H_FACTOR and roughness is not None and roughness < lo)))
 
 
 def _finish(name, resjac_at, n_hat, h_hat, rig, extra_params, resid_floor, n_eval, converged,
