@@ -102,7 +102,8 @@ def test_a_glint_sharper_than_any_planes_lobe_is_not_fitted_again_from_further_s
     # One channel, two guides 8 mm apart: a glint of 0.7 px (a Gaussian over a flat background, 1 % noise), which
     # no plane at a plausible depth images (its lobe is every guide's, sharper than the sharpest roughness). The
     # fit runs off away from the camera and is not retried from RETRY_START_DEPTHS starts: the default
-    # colonoscope frame spent half its fits' time on such retries of fold crests' glints, none of them placed.
+    # colonoscope frame spent a quarter of its fits' work on such retries of fold crests' glints (41.5 M against
+    # 30.1 M pixel-evaluations), none of them placed.
     tries = []
     fit_lobes = plane._fit_lobes
     monkeypatch.setattr(plane, "_fit_lobes", lambda *a: tries.append(a[-1].n_start_depths) or fit_lobes(*a))
