@@ -22,7 +22,7 @@ import simtest.dataset
 from simtest.dataset.config import FAMILIES, config_from_dict, load_config
 from simtest.dataset.generate import generate
 from simtest.dataset.sample import draw_parameters, render_sample
-from simtest.dataset.shards import array_sha256, read_manifest
+from simtest.dataset.shards import SHARDS_DIR, array_sha256, read_manifest
 from simtest.dataset.verify import verify
 from simtest.geometry.conics import conic_to_ellipse
 
@@ -122,7 +122,7 @@ def test_sigkill_mid_run_then_rerun_gives_the_uninterrupted_dataset(reference, c
         deadline = time.monotonic() + 120
         # the first shard done, whichever it is (the workers finish them in no fixed order: waiting
         # for shard 0 alone let a run with shard 0 last finish every shard before the kill)
-        while not any((out / "shards").glob("*.json")):
+        while not any((out / SHARDS_DIR).glob("*.json")):
             assert proc.poll() is None, proc.stderr.read().decode()
             assert time.monotonic() < deadline, "no shard written within 120 s"
             time.sleep(0.005)
