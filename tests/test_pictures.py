@@ -113,7 +113,7 @@ def test_the_recommended_normal_is_the_widest_needle_whatever_gives_it(tmp_path,
     ok = [e for e in reconstruct(img, K, [0.2, 0.4]) if e.ok]
     assert ok and all(e.recommended.normal_from in overlay_mod.DEFAULT_ESTIMATORS for e in ok)
     legends = []
-    monkeypatch.setattr(overlay_mod, "_legend", lambda canvas, title, entries: legends.append(entries))
+    monkeypatch.setattr(overlay_mod, "_legend", lambda canvas, title, entries, **_: legends.append(entries))
     png = cv2.imread(str(draw_overlay(tmp_path / "a.png", img, ok, K)))
     cyan = colour_pixels(png, estimator_colour("normal"), tol=30)
     one = cv2.imread(str(draw_overlay(tmp_path / "b.png", img, ok, K, estimators=["normal"])))
@@ -248,3 +248,56 @@ def test_every_mapped_setting_is_a_field_set_by_an_option_of_the_command():
     # a setting a user cannot pass keeps its field name; another error is left as it is
     assert option_message(SettingError("peak_rel", "must be in (0, 1), got 2")) == "peak_rel: must be in (0, 1), got 2"
     assert option_message(ValueError("frame.png: cannot decode")) == "frame.png: cannot decode"
+
+
+def _blobs(shape, centres):
+    """An 8-bit grey frame with an elliptical Gaussian highlight (axes 4 and 2.5 px) at each (u, v) of ``centres``."""
+    vv, uu = np.mgrid[0:shape[0], 0:shape[1]]
+    img = np.full(shape, 0.25)
+    for u, v in centres:
+        img += 0.75 * np.exp(-0.5 * (((uu - u) / 4.0) ** 2 + ((vv - v) / 2.5) ** 2))
+    return np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("corner", [(215.0, 20.0), (25.0, 20.0)])
+def test_the_legend_goes_where_it_hides_no_highlight(tmp_path, corner):
+    # a highlight under where the legend box would stand in the upper right (and, second, in the upper left
+    # too): the box moves to a corner that holds none, and the highlight's BP dot shows white, not darkened to
+    # a quarter under the box
+    K = np.array([[300.0, 0, 119.5], [0, 300, 119.5], [0, 0, 1]])
+    centres = [corner, (120.0, 120.0)] + ([(215.0, 20.0)] if corner[0] < 100 else [])
+    img = _blobs((240, 240), centres)
+    ok = [e for e in reconstruct(img, K, [0.3, 0.6]) if e.ok]
+    assert len(ok) == len(centres)
+    png = cv2.imread(str(draw_overlay(tmp_path / "o.png", img, ok, K)))
+    # the box: 75 % black over the frame's grey of 64 (16 under it), in a corner, holding no BP
+    # (the largest dark component: the BPs' dots have black rims)
+    _, _, stats, _ = cv2.connectedComponentsWithStats((png.max(axis=2) <= 24).astype(np.uint8))
+    c0, r0, bw, bh, area = stats[1 + np.argmax(stats[1:, 4])]
+    r1, c1 = r0 + bh - 1, c0 + bw - 1
+    assert area > 0.05 * 700 * 700
+    assert (r0 < 10 or r1 > 690) and (c0 < 10 or c1 > 690)
+    scale = 700 / 240
+    for e in ok:
+        u, v = (np.asarray(e.bp_px) + 0.5) * scale - 0.5
+        assert not (r0 <= v <= r1 and c0 <= u <= c1), e.bp_px
+        assert png[int(round(v)), int(round(u))].min() >= 200, e.bp_px  # its white dot, not darkened
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(50, 900), st.integers(50, 900), st.integers(10, 400), st.integers(10, 300),
+       st.lists(st.tuples(st.floats(0, 900), st.floats(0, 900)), max_size=30))
+def test_the_legend_corner_hides_the_fewest_points(w, h, bw, bh, pts):
+    # the chosen box lies in the canvas, and no other corner's box (the same rule: 4 px in, or flush where the
+    # box hardly fits) holds fewer of the points; an empty corner is chosen where there is one
+    bw, bh = min(bw, w), min(bh, h)
+    pts = np.array(pts, np.float64).reshape(-1, 2)
+    x0, y0 = overlay_mod._legend_corner((h, w, 3), (bw, bh), pts)
+    assert 0 <= x0 <= w - bw and 0 <= y0 <= h - bh
+
+    def inside(x, y):
+        return int(np.count_nonzero((pts[:, 0] >= x - 1) & (pts[:, 0] <= x + bw + 1) & (pts[:, 1] >= y - 1)
+                                    & (pts[:, 1] <= y + bh + 1)))
+    xs = {w - bw - 4 if w > bw + 4 else 0, 4 if w > bw + 4 else 0}
+    ys = {4 if h > bh + 4 else 0, h - bh - 4 if h > bh + 4 else 0}
+    assert inside(x0, y0) == min(inside(x, y) for x in xs for y in ys)

@@ -39,7 +39,7 @@ def test_the_summary_counts_the_ok_estimates_by_the_estimator_of_their_normal(tm
 
 def test_the_overlay_legend_counts_the_recommended_normals_of_each_estimator(tmp_path, monkeypatch):
     legends = []
-    monkeypatch.setattr(overlay, "_legend", lambda canvas, title, entries: legends.append(entries))
+    monkeypatch.setattr(overlay, "_legend", lambda canvas, title, entries, **_: legends.append(entries))
     out = tmp_path / "out"
     res = CliRunner().invoke(app, ["reconstruct", str(DATA / "hyperkvasir_tile_r2c3_polyp.png"), "-k",
                                    str(DATA / "intrinsics_assumed_f140.json"), "-o", str(out)])

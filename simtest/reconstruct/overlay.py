@@ -2,11 +2,11 @@
 
 A normal n at the BP is drawn as a gauge-figure needle from the BP along ``(n_x, n_y)`` of the
 camera-frame normal (a perspective projection would put every co-located normal onto the BP).
-One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its count; in the
-default order the recommended normal, what the command gives, is the widest needle, under its source's. By
-default only ``ok`` estimates (``show_rejected`` adds red crosses), the primary isophote as a thin
-outline, and a needle length from the highlights' spacing (:func:`needle_length_px`). Drawn with
-OpenCV on an 8-bit copy; :func:`check_overlay_size` refuses, before anything is written, an image
+One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its count, in the corner where it
+hides the fewest BPs and needles; in the default order the recommended normal, what the command gives, is the
+widest needle, under its source's. By default only ``ok`` estimates (``show_rejected`` adds red crosses), the
+primary isophote as a thin outline, and a needle length from the highlights' spacing (:func:`needle_length_px`).
+Drawn with OpenCV on an 8-bit copy; :func:`check_overlay_size` refuses, before anything is written, an image
 whose overlay would not fit in memory.
 """
 
@@ -218,12 +218,14 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
         if p is not None and p.points_uv is not None and len(p.points_uv):
             cv2.polylines(canvas, [at(p.points_uv)], bool(p.closed), _bgr("#ffff00"), 1, cv2.LINE_AA, _SHIFT)
     # later estimators drawn thinner on top, 2 px apart: coinciding needles show as nested stripes
+    ink = [at(bps).reshape(-1, 2)]  # what the legend should not hide: BPs and points along the needles
     for i, name in enumerate(present):
         colour, thick = _bgr(estimator_colour(name)), round((2 * (len(present) - 1 - i) + 1) * scale)
         for est, d in zip(ok, normals):
             if name in d:
                 base = np.asarray(est.bp_px, dtype=np.float64)
                 _needle(canvas, at(base), at(base + length_px * d[name][:2]), colour, thick, dashed=name == "bp_ray")
+                ink.append(at(base + length_px * _ALONG[:, None] * d[name][:2]))
     r = max(2, round(2 * scale))
     for b in at(bps):
         cv2.circle(canvas, tuple(int(x) for x in b), r * _ONE, (255, 255, 255), -1, cv2.LINE_AA, _SHIFT)
@@ -244,7 +246,7 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     title = f"{len(ok)} of {len(estimates)} highlights reconstructed"
     if rejected and not show_rejected:
         title += f" ({len(rejected)} others not drawn)"
-    _legend(canvas, title, entries)
+    _legend(canvas, title, entries, avoid=np.concatenate(ink) / _ONE)
     ok_png, buf = cv2.imencode(".png", canvas)
     if not ok_png:
         raise OSError(f"overlay: OpenCV could not encode a {canvas.shape[1]} x {canvas.shape[0]} PNG")
@@ -257,6 +259,8 @@ _ONE = 1 << _SHIFT
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 #: Dash and gap of a dashed needle (the BP ray), canvas px.
 _DASH_PX = 6.0
+#: Where along a needle (fraction of its length) the legend's placement reads it (:func:`_legend_corner`).
+_ALONG = np.linspace(0.0, 1.0, 5)
 
 
 def _bgr(hexcol: str) -> tuple[int, int, int]:
@@ -284,19 +288,33 @@ def _entry_label(name: str, whence: dict[str, int]) -> str:
     return f"{name} (recommended for {whence[name]})" if whence.get(name) else name
 
 
-def _legend(canvas, title: str, entries) -> None:
-    """The legend box in the upper right corner: ``title``, then a sample and a label per entry
-    (``entries``: label, colour, kind among line, dash, thin, dot, cross), white on 75 % black."""
+def _legend_corner(shape, size, avoid) -> tuple[int, int]:
+    """The upper left corner (x0, y0), px, of a box of ``size`` (width, height) 4 px into the corner of a canvas of
+    ``shape`` (flush where the box hardly fits) that covers the fewest of the points ``avoid`` ((N, 2), x and y, px):
+    upper right, upper left, lower right or lower left, the first of those on a tie."""
+    (h, w), (bw, bh) = shape[:2], size
+    xs, ys = (w - bw - 4, 4) if w > bw + 4 else (0, 0), (4, h - bh - 4) if h > bh + 4 else (0, 0)
+    pts = np.asarray(avoid, np.float64).reshape(-1, 2)
+    corners = [(x, y) for y in ys for x in xs]
+    return corners[int(np.argmin([np.count_nonzero((np.abs(pts[:, 0] - x - bw / 2) <= bw / 2 + 1)
+                                                   & (np.abs(pts[:, 1] - y - bh / 2) <= bh / 2 + 1))
+                                  for x, y in corners]))]
+
+
+def _legend(canvas, title: str, entries, avoid=()) -> None:
+    """The legend box: ``title``, then a sample and a label per entry (``entries``: label, colour, kind among
+    line, dash, thin, dot, cross), white on 75 % black, in the corner that hides the fewest points of ``avoid``
+    ((N, 2) canvas px: :func:`_legend_corner`)."""
     scale, pad, row, sample = 0.45, 8, 18, 28
     (tw, th), _ = cv2.getTextSize(title, _FONT, scale, 1)
     label_w = max((cv2.getTextSize(e[0], _FONT, scale, 1)[0][0] for e in entries), default=0)
     bw = min(canvas.shape[1], max(tw, sample + 6 + label_w) + 2 * pad)
     bh = min(canvas.shape[0], pad + th + 6 + row * len(entries) + pad)
-    x0 = canvas.shape[1] - bw - 4 if canvas.shape[1] > bw + 4 else 0
-    box = canvas[4:4 + bh, x0:x0 + bw]
+    x0, y0 = _legend_corner(canvas.shape, (bw, bh), avoid)
+    box = canvas[y0:y0 + bh, x0:x0 + bw]
     box[:] = (box.astype(np.uint16) // 4).astype(np.uint8)  # 75 % black over the image
-    cv2.rectangle(canvas, (x0, 4), (x0 + bw - 1, 3 + bh), (255, 255, 255), 1)
-    y = 4 + pad + th
+    cv2.rectangle(canvas, (x0, y0), (x0 + bw - 1, y0 + bh - 1), (255, 255, 255), 1)
+    y = y0 + pad + th
     cv2.putText(canvas, title, (x0 + pad, y), _FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
     for label, hexcol, kind in entries:
         y += row
