@@ -47,7 +47,7 @@ def test_the_overlay_legend_counts_the_recommended_normals_of_each_estimator(tmp
     rows = json.loads((out / "estimates.json").read_text())["specularities"]
     want = Counter(r["normal_from"] for r in rows if r["status"] == "ok")
     (entries,) = legends
-    labels = {label.split(" ")[0]: label for label, _, kind in entries if kind in ("line", "dash")}  # the needles
+    labels = {label.split(" ")[0]: label for label, _, kind in entries if kind in ("line", "dash", "outlined")}  # the needles
     for name, n in want.items():  # every source is drawn (the tile's: isophote estimators) and counted
         assert labels[name] == f"{name} (recommended for {n})", labels
     assert all(label == name for name, label in labels.items() if name not in want and name != "normal")

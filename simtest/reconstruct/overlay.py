@@ -3,9 +3,10 @@
 A normal n at the BP is drawn as a gauge-figure needle from the BP along ``(n_x, n_y)`` of the
 camera-frame normal (a perspective projection would put every co-located normal onto the BP).
 One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its count, in the corner where it
-hides the fewest BPs and needles; in the default order the recommended normal, what the command gives, is the
-widest needle, under its source's. By default only ``ok`` estimates (``show_rejected`` adds red crosses), the
-primary isophote as a thin outline, and a needle length from the highlights' spacing (:func:`needle_length_px`).
+hides the fewest BPs and needles; the recommended normal, what the command gives, is drawn last, outlined, over
+the others (nested stripes where they coincide). By default only ``ok`` estimates (``show_rejected`` adds red
+crosses), the primary isophote as a thin outline, and a needle length from the highlights' spacing
+(:func:`needle_length_px`).
 Drawn with OpenCV on an 8-bit copy; :func:`check_overlay_size` refuses, before anything is written, an image
 whose overlay would not fit in memory.
 """
@@ -217,14 +218,22 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
         p = est.primary
         if p is not None and p.points_uv is not None and len(p.points_uv):
             cv2.polylines(canvas, [at(p.points_uv)], bool(p.closed), _bgr("#ffff00"), 1, cv2.LINE_AA, _SHIFT)
-    # later estimators drawn thinner on top, 2 px apart: coinciding needles show as nested stripes
+    # later estimators drawn thinner on top, 2 px apart: coinciding needles show as nested stripes; the normal
+    # the command gives last, outlined in black, over whatever it disagrees with
     ink = [at(bps).reshape(-1, 2)]  # what the legend should not hide: BPs and points along the needles
-    for i, name in enumerate(present):
-        colour, thick = _bgr(estimator_colour(name)), round((2 * (len(present) - 1 - i) + 1) * scale)
+    others = [n for n in present if n != "normal"]
+    layers = [(n, [(_bgr(estimator_colour(n)), round((2 * (len(others) - 1 - i) + 1) * scale))])
+              for i, n in enumerate(others)]
+    if "normal" in present:
+        core = (_bgr(estimator_colour("normal")), max(1, round(scale)))
+        layers.append(("normal", [((0, 0, 0), round(3 * scale)), core]))
+    for name, strokes in layers:
         for est, d in zip(ok, normals):
             if name in d:
                 base = np.asarray(est.bp_px, dtype=np.float64)
-                _needle(canvas, at(base), at(base + length_px * d[name][:2]), colour, thick, dashed=name == "bp_ray")
+                for colour, thick in strokes:
+                    _needle(canvas, at(base), at(base + length_px * d[name][:2]), colour, thick,
+                            dashed=name == "bp_ray")
                 ink.append(at(base + length_px * _ALONG[:, None] * d[name][:2]))
     r = max(2, round(2 * scale))
     for b in at(bps):
@@ -237,7 +246,7 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
             if len(rejected) <= 30:
                 cv2.putText(canvas, e.status, (u + 4, v - 4), _FONT, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
     whence = normals_from(ok)
-    entries = [(_entry_label(n, whence), estimator_colour(n), "dash" if n == "bp_ray" else "line")
+    entries = [(_entry_label(n, whence), estimator_colour(n), {"bp_ray": "dash", "normal": "outlined"}.get(n, "line"))
                for n in present]
     entries.append(("isophote (primary)", "#ffff00", "thin"))
     entries.append(("BP", "#ffffff", "dot"))
@@ -303,8 +312,8 @@ def _legend_corner(shape, size, avoid) -> tuple[int, int]:
 
 def _legend(canvas, title: str, entries, avoid=()) -> None:
     """The legend box: ``title``, then a sample and a label per entry (``entries``: label, colour, kind among
-    line, dash, thin, dot, cross), white on 75 % black, in the corner that hides the fewest points of ``avoid``
-    ((N, 2) canvas px: :func:`_legend_corner`)."""
+    line, dash, thin, outlined, dot, cross), white on 75 % black, in the corner that hides the fewest points of
+    ``avoid`` ((N, 2) canvas px: :func:`_legend_corner`)."""
     scale, pad, row, sample = 0.45, 8, 18, 28
     (tw, th), _ = cv2.getTextSize(title, _FONT, scale, 1)
     label_w = max((cv2.getTextSize(e[0], _FONT, scale, 1)[0][0] for e in entries), default=0)
@@ -319,9 +328,11 @@ def _legend(canvas, title: str, entries, avoid=()) -> None:
     for label, hexcol, kind in entries:
         y += row
         c, mid, xs = _bgr(hexcol), y - th // 2, x0 + pad
-        if kind in ("line", "dash", "thin"):
+        if kind in ("line", "dash", "thin", "outlined"):
             a, b = np.array([xs, mid]) * _ONE, np.array([xs + sample, mid]) * _ONE
-            _needle(canvas, a, b, c, 1 if kind == "thin" else 3, dashed=kind == "dash")
+            if kind == "outlined":  # (the recommended normal: a core on black)
+                _needle(canvas, a, b, (0, 0, 0), 3)
+            _needle(canvas, a, b, c, 1 if kind in ("thin", "outlined") else 3, dashed=kind == "dash")
         elif kind == "dot":
             cv2.circle(canvas, (xs + sample // 2, mid), 3, c, -1, cv2.LINE_AA)
             cv2.circle(canvas, (xs + sample // 2, mid), 3, (0, 0, 0), 1, cv2.LINE_AA)
