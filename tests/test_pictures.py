@@ -21,6 +21,7 @@ from simtest.reconstruct import reconstruct
 from simtest.reconstruct import overlay as overlay_mod
 from simtest.reconstruct.io import estimate_to_dict
 from simtest.reconstruct.overlay import draw_overlay, estimator_colour, needle_length_px
+from simtest.reconstruct.view3d import render_view
 from _quadrics import phong_sphere_image
 from simtest.simulate.analytic import phong_plane_image
 
@@ -307,3 +308,29 @@ def test_the_legend_corner_hides_the_fewest_points(w, h, bw, bh, pts):
     xs = {w - bw - 4 if w > bw + 4 else 0, 4 if w > bw + 4 else 0}
     ys = {4 if h > bh + 4 else 0, h - bh - 4 if h > bh + 4 else 0}
     assert inside(x0, y0) == min(inside(x, y) for x in xs for y in ys)
+
+
+def test_the_3d_views_truth_panel_shows_the_highlights_on_a_lumens_far_wall(tmp_path):
+    # a tube of radius 10 mm seen from its axis (a colon's lumen) with 12 highlights around its wall, each with the
+    # wall's inward normal: from the view's oblique eye the near wall turns its back, and drawn whole it hid most of
+    # the discs (6 glyph blobs of at least 20 px); drawn on the side the camera saw only, each shows its disc or
+    # arrow (14 blobs here; 10 allows for glyphs that overlap or show edge-on)
+    K = np.array([[120.0, 0, 79.5], [0, 120, 79.5], [0, 0, 1]])
+    cam = PinholeCamera(K, None, (160, 160))
+    vv, uu = np.mgrid[0:160, 0:160]
+    d = cam.pixel_to_ray(np.stack([uu.ravel(), vv.ravel()], 1).astype(float)).reshape(160, 160, 3)
+    d /= np.linalg.norm(d, axis=2, keepdims=True)
+    wall = d * (10.0 / np.hypot(d[..., 0], d[..., 1]))[..., None]
+    wall[wall[..., 2] > 60.0] = np.nan
+    specs = []
+    for a in np.linspace(0.0, 2 * np.pi, 12, endpoint=False):
+        u, v = 79.5 + 45 * np.cos(a), 79.5 + 45 * np.sin(a)
+        p, ray = wall[int(round(v)), int(round(u))], d[int(round(v)), int(round(u))]
+        specs.append({"status": "ok", "bp_px": [u, v], "normal": [-p[0] / 10.0, -p[1] / 10.0, 0.0],
+                      "normals": {"bp_ray": (-ray).tolist()}})
+    png = cv2.imread(str(render_view(tmp_path / "v.png", specs, truth_points=wall)))
+    right = png[:, png.shape[1] // 2:]
+    rgb = np.array([int(estimator_colour("normal")[i:i + 2], 16) for i in (1, 3, 5)])
+    glyphs = (np.abs(right[:, :, ::-1].astype(int) - rgb).max(axis=2) <= 80).astype(np.uint8)
+    stats = cv2.connectedComponentsWithStats(glyphs)[2]
+    assert int((stats[1:, 4] >= 20).sum()) >= 10

@@ -200,7 +200,9 @@ def _render(pv, path, specs, estimator, pts, nrm, metric, truth_points, window_s
         on = np.array(on).reshape(-1, 3)
         keep = np.isfinite(on).all(axis=1)
         pl.subplot(0, 1)
-        pl.add_mesh(surf, color="#d9c2b0", smooth_shading=True, specular=0.2)
+        # the side the camera saw only (its faces' winding is the image's): from the oblique eye the wall of a
+        # lumen nearest it turns its back, and would hide the highlights on the far wall
+        pl.add_mesh(surf, color="#d9c2b0", smooth_shading=True, specular=0.2, culling="back")
         if keep.any():
             r = 0.03 * float(np.nanmax(np.ptp(sub.reshape(-1, 3)[valid.ravel()], axis=0)))
             discs, arrows = _glyphs(pv, on[keep], nrm[keep], r)
