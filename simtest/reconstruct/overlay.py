@@ -6,9 +6,8 @@ One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its
 hides the fewest BPs and needles; the recommended normal, what the command gives, is drawn last, outlined, over
 the others (nested stripes where they coincide). By default only ``ok`` estimates (``show_rejected`` adds red
 crosses), the primary isophote as a thin outline, and a needle length from the highlights' spacing
-(:func:`needle_length_px`).
-Drawn with OpenCV on an 8-bit copy; :func:`check_overlay_size` refuses, before anything is written, an image
-whose overlay would not fit in memory.
+(:func:`needle_length_px`). Drawn with OpenCV on an 8-bit copy; :func:`check_overlay_size` refuses, before
+anything is written, an image whose overlay would not fit in memory.
 """
 
 from __future__ import annotations
@@ -246,8 +245,8 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
             if len(rejected) <= 30:
                 cv2.putText(canvas, e.status, (u + 4, v - 4), _FONT, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
     whence = normals_from(ok)
-    entries = [(_entry_label(n, whence), estimator_colour(n), {"bp_ray": "dash", "normal": "outlined"}.get(n, "line"))
-               for n in present]
+    kinds = {"bp_ray": "dash", "normal": "outlined"}  # (the legend's sample of each needle)
+    entries = [(_entry_label(n, whence), estimator_colour(n), kinds.get(n, "line")) for n in present]
     entries.append(("isophote (primary)", "#ffff00", "thin"))
     entries.append(("BP", "#ffffff", "dot"))
     if show_rejected and rejected:
