@@ -48,9 +48,14 @@ def many_highlights(n=300, shape=(1080, 1350), seed=7):
     return np.round(np.clip(img, 0, 1) * 255).astype(np.uint8), np.array(centres)
 
 
-def colour_pixels(png, hexcol, tol=40):
+def colour_mask(png, hexcol, tol=40):
+    """The pixels of a BGR picture within ``tol`` of ``hexcol`` in every channel."""
     rgb = np.array([int(hexcol[i:i + 2], 16) for i in (1, 3, 5)])
-    return int(np.count_nonzero(np.abs(png[:, :, ::-1].astype(int) - rgb).max(axis=2) <= tol))
+    return np.abs(png[:, :, ::-1].astype(int) - rgb).max(axis=2) <= tol
+
+
+def colour_pixels(png, hexcol, tol=40):
+    return int(np.count_nonzero(colour_mask(png, hexcol, tol)))
 
 
 def test_overlay_on_a_crowded_real_size_frame(tmp_path):
@@ -330,7 +335,5 @@ def test_the_3d_views_truth_panel_shows_the_highlights_on_a_lumens_far_wall(tmp_
                       "normals": {"bp_ray": (-ray).tolist()}})
     png = cv2.imread(str(render_view(tmp_path / "v.png", specs, truth_points=wall)))
     right = png[:, png.shape[1] // 2:]
-    rgb = np.array([int(estimator_colour("normal")[i:i + 2], 16) for i in (1, 3, 5)])
-    glyphs = (np.abs(right[:, :, ::-1].astype(int) - rgb).max(axis=2) <= 80).astype(np.uint8)
-    stats = cv2.connectedComponentsWithStats(glyphs)[2]
+    stats = cv2.connectedComponentsWithStats(colour_mask(right, estimator_colour("normal"), 80).astype(np.uint8))[2]
     assert int((stats[1:, 4] >= 20).sum()) >= 10

@@ -229,11 +229,11 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     for name, strokes in layers:
         for est, d in zip(ok, normals):
             if name in d:
-                base = np.asarray(est.bp_px, dtype=np.float64)
+                # points along the needle, its BP (_ALONG's 0) to its tip (1), canvas fixed point
+                along = at(np.asarray(est.bp_px, dtype=np.float64) + length_px * _ALONG[:, None] * d[name][:2])
                 for colour, thick in strokes:
-                    _needle(canvas, at(base), at(base + length_px * d[name][:2]), colour, thick,
-                            dashed=name == "bp_ray")
-                ink.append(at(base + length_px * _ALONG[:, None] * d[name][:2]))
+                    _needle(canvas, along[0], along[-1], colour, thick, dashed=name == "bp_ray")
+                ink.append(along)
     r = max(2, round(2 * scale))
     for b in at(bps):
         cv2.circle(canvas, tuple(int(x) for x in b), r * _ONE, (255, 255, 255), -1, cv2.LINE_AA, _SHIFT)
