@@ -43,9 +43,10 @@ def specular_image(rgb, clip_level=None, *, ring=None, fluctuation: bool = True,
     Dichromatic reflection [6]_: ``I = S (1, 1, 1) + D a(x)``, the film's reflection S white and the
     body reflection coloured by the albedo ``a(x)``, whose texture moves within a plane B of RGB.
     Weights ``w`` orthogonal to B with ``w . (1, 1, 1) = 1`` give ``w . I = S`` whatever the texture.
-    B is the two leading right singular vectors of the border band's colours clear of the clip (each
-    channel below its clip less ``censor_margin``, no 8-neighbour clipped: noise leaves a clipped
-    channel below its clip now and then, a colour no tissue has), pixels whose projected value
+    B is the plane of the border band's colours clear of the clip (each channel below its clip less
+    ``censor_margin``, no 8-neighbour clipped: noise leaves a clipped channel below its clip now and
+    then, a colour no tissue has), fitted in units of each channel's noise where the ROI shows noise
+    (:func:`_body_weights`), pixels whose projected value
     exceeds :data:`_BODY_TRIM_SHARE` of the peak (another lobe) trimmed in passes; a
     second body colour counts only above :data:`_BODY_SECOND_SNR` times the third singular value, and
     so in units of each channel's noise (:func:`_channel_noise`: noise added after a tone curve, or
@@ -222,23 +223,22 @@ def _least_fluctuation_weights(v, clipped) -> np.ndarray | None:
 def _body_weights(colours, scale=None) -> np.ndarray | None:
     """Weights ``w`` (3,) orthogonal to the plane of the two leading body colours of ``colours`` (M, 3),
     ``w . (1, 1, 1) = 1``; None without a second body colour or with a gain above
-    :data:`BODY_PROJECTION_MAX_GAIN`. ``scale`` (3,): each channel's noise standard deviation, or a function
-    giving it or None (called only where the colours as given show a second colour); the second colour must
-    stand out in its units too (the noise then alike in every direction). None: as given."""
-    sv, Vt = np.linalg.svd(colours, full_matrices=False)[1:]
-    one = np.ones(3)
+    :data:`BODY_PROJECTION_MAX_GAIN`. ``scale`` (3,): each channel's noise standard deviation, or a
+    function giving it or None (called only where the colours as given show a second colour); the plane
+    is then fitted, and the second colour must stand out, in units of each channel's noise, where the
+    noise is alike in every direction and the total least squares plane the maximum-likelihood one
+    (Van Huffel and Vandewalle 1991, https://doi.org/10.1137/1.9781611971002); a plane fitted to the
+    colours as given tilts towards the noisiest channel. None: as given."""
+    sv = np.linalg.svd(colours, compute_uv=False)
     # a second body colour only where its singular value stands above the third's and round-off, and so in
     # units of each channel's noise, where a noisier channel alone no longer looks like a colour
     if not (sv[1] > _BODY_SECOND_SNR * sv[2] and sv[1] > 1e-9 * sv[0]):
         return None
     scale = scale() if callable(scale) else scale
-    sw = None if scale is None else np.linalg.svd(colours / scale, compute_uv=False)
-    if sw is not None and not sw[1] > _BODY_SECOND_SNR * sw[2]:
+    unit = np.ones(3) if scale is None else np.asarray(scale, dtype=np.float64)
+    sw, Vt = np.linalg.svd(colours / unit, full_matrices=False)[1:]
+    if scale is not None and not sw[1] > _BODY_SECOND_SNR * sw[2]:
         return None
-    B = Vt[:2].T
-    P = np.eye(3) - B @ B.T  # the rows of Vt are orthonormal
-    den = float(one @ P @ one)
-    if not den > 0:
-        return None
-    w = (P @ one) / den
-    return w if float(np.linalg.norm(w)) <= BODY_PROJECTION_MAX_GAIN else None
+    n = Vt[2] / unit  # the plane's normal in noise units, mapped back: n . b = 0 for the body colours b
+    w = n / float(n.sum()) if n.sum() else None
+    return w if w is not None and float(np.linalg.norm(w)) <= BODY_PROJECTION_MAX_GAIN else None
