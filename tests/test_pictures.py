@@ -66,7 +66,7 @@ def test_overlay_on_a_crowded_real_size_frame(tmp_path):
     ests = reconstruct(img, K, [0.3, 0.6])
     ok = [e for e in ests if e.ok]
     assert len(ok) >= 200  # hundreds of highlights drawn
-    path = draw_overlay(tmp_path / "overlay.png", img, ests, K)
+    path = draw_overlay(tmp_path / "overlay.png", img, ests, K, estimators="all")
     png = cv2.imread(str(path))
     assert png.shape[:2] == (1080, 1350)  # the frame's own pixel size
     for name in ("cone_axis", "joint_cone_axis", "paper_selected", "bp_ray"):
@@ -103,11 +103,37 @@ def test_overlay_draws_only_ok_estimates_by_default(tmp_path):
     ests = reconstruct(img, K, [0.2, 0.4])
     assert any(not e.ok for e in ests) and any(e.ok for e in ests)
     red = estimator_colour("cone_axis")
-    a = cv2.imread(str(draw_overlay(tmp_path / "a.png", img, ests, K)))
-    b = cv2.imread(str(draw_overlay(tmp_path / "b.png", img, ests, K, show_rejected=True)))
+    a = cv2.imread(str(draw_overlay(tmp_path / "a.png", img, ests, K, estimators="all")))
+    b = cv2.imread(str(draw_overlay(tmp_path / "b.png", img, ests, K, estimators="all", show_rejected=True)))
     crop = (slice(0, 40), slice(560, 640))  # around the rejected BP (201.5, 1.5), drawn 700/240 larger
     assert colour_pixels(b[crop], "#ff0000", tol=60) > colour_pixels(a[crop], "#ff0000", tol=60)
     assert colour_pixels(a, red) > 0
+
+
+def test_by_default_the_overlay_draws_what_the_command_gives_and_names_the_rest(tmp_path, monkeypatch):
+    # through the command: the recommended normal and the estimators it came from are drawn; the estimators
+    # it did not come from are named in the legend, not drawn, unless asked for
+    png, cam = _scene(tmp_path)
+    legends, runs = [], {}
+    draw_legend = overlay_mod._legend
+    monkeypatch.setattr(overlay_mod, "_legend", lambda c, t, e, **kw: (legends.append(e), draw_legend(c, t, e, **kw)))
+    for key, extra in (("default", []), ("all", ["--overlay-estimators", "all"]),
+                       ("paper", ["--overlay-estimators", "normal", "--overlay-estimators", "paper_selected"])):
+        out = tmp_path / key
+        assert runner.invoke(app, ["reconstruct", str(png), "-k", str(cam), "-o", str(out), *extra]).exit_code == 0
+        runs[key] = cv2.imread(str(out / "overlay.png"))
+    doc = json.loads((tmp_path / "default" / "estimates.json").read_text())
+    sources = {s["normal_from"] for s in doc["specularities"] if s["status"] == "ok"}
+    others = [n for n in ("cone_axis", "joint_cone_axis", "paper_selected", "bp_ray") if n not in sources]
+    assert sources and others  # (the scene gives both kinds)
+    for name in others:  # (a needle is tens of pixels of its colour; a stray anti-aliased pixel is not)
+        assert colour_pixels(runs["default"], estimator_colour(name)) == 0, name
+        assert colour_pixels(runs["all"], estimator_colour(name)) > 20, name
+    assert colour_pixels(runs["default"], estimator_colour("normal")) > 20
+    assert colour_pixels(runs["paper"], estimator_colour("paper_selected")) > 20
+    labels = [label for label, *_ in legends[0]]
+    assert f"not drawn: {', '.join(others)}" in labels
+    assert not any(label.startswith("not drawn") for label, *_ in legends[1])
 
 
 def test_the_recommended_normal_is_drawn_over_the_other_needles(tmp_path, monkeypatch):
@@ -117,7 +143,7 @@ def test_the_recommended_normal_is_drawn_over_the_other_needles(tmp_path, monkey
     t = np.radians(12)
     img = phong_plane_image(K, (240, 240), [np.sin(t), 0, -np.cos(t)], 500.0, 60)
     ok = [e for e in reconstruct(img, K, [0.2, 0.4]) if e.ok]
-    assert ok and all(e.recommended.normal_from in overlay_mod.DEFAULT_ESTIMATORS for e in ok)
+    assert ok and all(e.recommended.normal_from in overlay_mod.DRAWABLE_ESTIMATORS for e in ok)
     legends = []
     monkeypatch.setattr(overlay_mod, "_legend", lambda canvas, title, entries, **_: legends.append(entries))
     png = cv2.imread(str(draw_overlay(tmp_path / "a.png", img, ok, K)))

@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import time
 from collections import Counter
+from enum import Enum
 from functools import partial
 from pathlib import Path
 from typing import Optional
@@ -40,7 +41,7 @@ from simtest.reconstruct._pixels import image_size_wh
 from simtest.reconstruct.frames import is_sequence, open_frames, reconstruct_frames, write_frames
 from simtest.reconstruct.images import InputError, c3vd_depth_mm, load_image, read_tiff
 from simtest.reconstruct.io import RECONSTRUCT_FILES, dumps, estimates_document, read_estimates
-from simtest.reconstruct.overlay import check_overlay_size, draw_overlay
+from simtest.reconstruct.overlay import DRAWABLE_ESTIMATORS, check_overlay_size, draw_overlay
 from simtest.reconstruct.pipeline import reconstruct
 from simtest.reconstruct.recommend import counts_text, normals_from
 from simtest.reconstruct.rig_centroid import light_aware_with_rig
@@ -63,6 +64,10 @@ def option_message(exc: Exception) -> str:
     option (:data:`SETTING_OPTIONS`): ``"--smooth: must be finite and in [0, 100] px, got -1.0"``."""
     option = SETTING_OPTIONS.get(getattr(exc, "setting", None))
     return f"{option}: {exc.reason}" if option else str(exc)
+
+
+#: What ``--overlay-estimators`` takes (typer checks the names).
+_Drawn = Enum("_Drawn", {n: n for n in ("all", *DRAWABLE_ESTIMATORS)}, type=str)
 
 
 def reconstruct_command(
@@ -88,6 +93,10 @@ def reconstruct_command(
     points: bool = typer.Option(False, "--points", help="Also write the contour points in estimates.json."),
     overlay: bool = typer.Option(True, "--overlay/--no-overlay", help="Write overlay.png."),
     overlay_all: bool = typer.Option(False, "--overlay-all", help="Mark rejected highlights in overlay.png too."),
+    overlay_estimators: Optional[list[_Drawn]] = typer.Option(  # noqa: UP045 (typer reads Optional)
+        None, "--overlay-estimators", metavar="NAME", show_default=False,
+        help=f"Needles drawn in overlay.png, a name per option: {', '.join(e.value for e in _Drawn)} (default: the "
+        "recommended normal and the estimators it came from)."),
     view: bool = typer.Option(False, "--view", help="Also write view.png, a 3D view of the normals (pyvista, off-screen)."),
     cubic_patch: bool = typer.Option(False, "--cubic-patch", help="With a light rig of two or more lights apart, also "
                                      "run cubic_patch_fit where the plane fit fails (the curved patch fitted to every "
@@ -167,7 +176,9 @@ def reconstruct_command(
         # the whole set is written into a fresh folder beside OUT, which then takes OUT's place
         (folder / "estimates.json").write_bytes(text)
         if overlay:
-            draw_overlay(folder / "overlay.png", img, estimates, camera, show_rejected=overlay_all)
+            drawn = [e.value for e in overlay_estimators or ()] or None
+            draw_overlay(folder / "overlay.png", img, estimates, camera, show_rejected=overlay_all,
+                         estimators="all" if drawn and "all" in drawn else drawn)
         if view:
             render_view(folder / "view.png", doc["specularities"])
 

@@ -1,10 +1,11 @@
-"""Overlay PNG of a reconstruction: isophotes, BPs and every estimator's normal, with a legend.
+"""Overlay PNG of a reconstruction: isophotes, BPs and the recommended normals (or every estimator's), a legend.
 
 A normal n at the BP is drawn as a gauge-figure needle from the BP along ``(n_x, n_y)`` of the
 camera-frame normal (a perspective projection would put every co-located normal onto the BP).
 One colour per estimator (:data:`ESTIMATOR_COLOURS`), named in a legend with its count, in the corner where it
 hides the fewest BPs and needles; the recommended normal, what the command gives, is drawn last, outlined, over
-the others (nested stripes where they coincide). By default only ``ok`` estimates (``show_rejected`` adds red
+the others (nested stripes where they coincide). By default only that normal and the estimators it came
+from (the legend names the others, not drawn), only ``ok`` estimates (``show_rejected`` adds red
 crosses), the primary isophote as a thin outline, and a needle length from the highlights' spacing
 (:func:`needle_length_px`). Drawn with OpenCV on an 8-bit copy; :func:`check_overlay_size` refuses, before
 anything is written, an image whose overlay would not fit in memory.
@@ -35,8 +36,9 @@ ESTIMATOR_COLOURS = {
     "bp_ray": "#ff9900",
 }
 _EXTRA_COLOURS = ("#17becf", "#bcbd22", "#e377c2", "#9467bd", "#8c564b", "#7f7f7f")
-#: Estimators drawn by default, in legend order (those an estimate has).
-DEFAULT_ESTIMATORS = ("normal", "cone_axis", "joint_cone_axis", "paper_selected", "bp_ray")
+#: The estimators an overlay draws, in legend order (those an estimate has; by default the recommended normal
+#: and its sources only, :func:`draw_overlay`).
+DRAWABLE_ESTIMATORS = ("normal", "cone_axis", "joint_cone_axis", "paper_selected", "bp_ray")
 
 #: Memory an overlay costs per image pixel (bytes): the float32 copy, the 8-bit and BGR canvases and
 #: OpenCV's PNG buffer (tracemalloc peaks: 5 B/px at 8 bits, 18 at 16, 27 for float64).
@@ -175,8 +177,10 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
         From :func:`~simtest.reconstruct.pipeline.reconstruct`.
     K : CameraModel or array_like of shape (3, 3), optional
         The camera; unused by the drawing, accepted for callers.
-    estimators : sequence of str, optional
-        Estimators drawn, default :data:`DEFAULT_ESTIMATORS` (those the estimates have).
+    estimators : sequence of str or "all", optional
+        Estimators drawn (among :data:`DRAWABLE_ESTIMATORS`; "all": each, where the estimates have it). Default:
+        what the command gives, the recommended normal and the estimators it came from; the legend names the
+        others the estimates hold, not drawn.
     show_rejected : bool
         Also mark highlights that were not reconstructed.
     needle_length : float, optional
@@ -199,9 +203,14 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
     h, w = disp.shape[:2]
     ok = [e for e in estimates if e.ok]
     rejected = [e for e in estimates if not e.ok]
-    names = list(estimators) if estimators is not None else list(DEFAULT_ESTIMATORS)
+    whence = normals_from(ok)
+    if estimators is None:  # the normal the command gives, and where it came from
+        names = [n for n in DRAWABLE_ESTIMATORS if n == "normal" or whence.get(n)]
+    else:
+        names = list(DRAWABLE_ESTIMATORS) if estimators == "all" else list(estimators)
     normals = [_normals_of(e) for e in ok]  # (each with its recommended normal: drawn too where its source is)
     present = [n for n in names if any(n in d for d in normals)]
+    hidden = [n for n in DRAWABLE_ESTIMATORS if n not in names and any(n in d for d in normals)]
     bps = np.array([e.bp_px for e in ok], dtype=np.float64).reshape(-1, 2)
     length_px = needle_length * max(h, w) if needle_length is not None else needle_length_px(bps, disp.shape)
 
@@ -244,9 +253,10 @@ def draw_overlay(path, image, estimates, K=None, *, estimators=None, show_reject
             cv2.drawMarker(canvas, (u, v), (0, 0, 255), cv2.MARKER_TILTED_CROSS, max(6, round(6 * scale)), 1)
             if len(rejected) <= 30:
                 cv2.putText(canvas, e.status, (u + 4, v - 4), _FONT, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
-    whence = normals_from(ok)
     kinds = {"bp_ray": "dash", "normal": "outlined"}  # (the legend's sample of each needle)
     entries = [(_entry_label(n, whence), estimator_colour(n), kinds.get(n, "line")) for n in present]
+    if hidden:
+        entries.append((f"not drawn: {', '.join(hidden)}", "#ffffff", "none"))
     entries.append(("isophote (primary)", "#ffff00", "thin"))
     entries.append(("BP", "#ffffff", "dot"))
     if show_rejected and rejected:
@@ -311,8 +321,8 @@ def _legend_corner(shape, size, avoid) -> tuple[int, int]:
 
 def _legend(canvas, title: str, entries, avoid=()) -> None:
     """The legend box: ``title``, then a sample and a label per entry (``entries``: label, colour, kind among
-    line, dash, thin, outlined, dot, cross), white on 75 % black, in the corner that hides the fewest points of
-    ``avoid`` ((N, 2) canvas px: :func:`_legend_corner`)."""
+    line, dash, thin, outlined, dot, cross, none), white on 75 % black, in the corner that hides the fewest
+    points of ``avoid`` ((N, 2) canvas px: :func:`_legend_corner`)."""
     scale, pad, row, sample = 0.45, 8, 18, 28
     (tw, th), _ = cv2.getTextSize(title, _FONT, scale, 1)
     label_w = max((cv2.getTextSize(e[0], _FONT, scale, 1)[0][0] for e in entries), default=0)
@@ -335,6 +345,6 @@ def _legend(canvas, title: str, entries, avoid=()) -> None:
         elif kind == "dot":
             cv2.circle(canvas, (xs + sample // 2, mid), 3, c, -1, cv2.LINE_AA)
             cv2.circle(canvas, (xs + sample // 2, mid), 3, (0, 0, 0), 1, cv2.LINE_AA)
-        else:
+        elif kind == "cross":
             cv2.drawMarker(canvas, (xs + sample // 2, mid), c, cv2.MARKER_TILTED_CROSS, 8, 1)
         cv2.putText(canvas, label, (xs + sample + 6, y), _FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
