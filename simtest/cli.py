@@ -131,7 +131,7 @@ class _LazyGroup(TyperGroup):
                 sys.exit(exc.exit_code)
             where = f"{ctx.command_path}: " if ctx is not None else ""
             hint = f"; see {ctx.command_path} --help" if ctx is not None else ""
-            what = one_line(exc.format_message()).rstrip(".")
+            what = one_line(exc.format_message()).rstrip(".").replace(": Value error, ", ": ")  # (typer's pydantic)
             typer.echo(f"error: {where}{what}{hint}", err=True)
             sys.exit(BAD_INPUT)
         except _ABORTS as exc:

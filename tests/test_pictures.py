@@ -211,7 +211,8 @@ def test_reconstruct_outputs_are_replaced_as_a_set(tmp_path, monkeypatch):
      (["-t", "0.3", "-t", "0.3"], "error: --isovalue: 0.3 is given twice"),
      (["-t", "1.5"], "error: --isovalue: 1.5 is outside the open interval (0, 1)"),
      (["--normalise", "peak"], "error: --normalise: 'peak' is not one of"),
-     (["--detection", "blob"], "error: --detection: 'blob' is not one of")],
+     (["--detection", "blob"], "error: --detection: 'blob' is not one of"),
+     (["--overlay-estimators", "cone"], "Invalid value for '--overlay-estimators': 'cone' is not one of 'all', ")],
 )
 def test_reconstruct_refuses_bad_options_in_one_line(tmp_path, args, msg):
     # the line names the option the user typed, not the setting's field behind it

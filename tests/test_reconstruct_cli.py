@@ -113,7 +113,6 @@ def test_bad_files_give_one_readable_line(scene, tmp_path):
         ([str(png), "-k", str(kjson), "-t", "1.5"], ["isovalue"]),
         ([str(tmp_path), "-k", str(kjson)], ["cannot decode", "empty.png"]),  # a folder of frames
         ([str(png), "-k", str(other_size)], ["other_size.json", "640 x 480", "240 x 240"]),
-        ([str(png), "-k", str(kjson), "--overlay-estimators", "cone"], ["--overlay-estimators", "cone"]),
     ]
     for args, words in cases:
         res = runner.invoke(app, ["reconstruct", *args, "-o", str(tmp_path / "o")])
