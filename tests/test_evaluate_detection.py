@@ -368,3 +368,47 @@ def test_recall_over_the_confidence_counts_a_k_light_target_once():
     rows = precision_recall([0.9, 0.8, 0.2], [True, True, True], 2, thresholds=(0.0, 0.5),
                             target_ids=[("f", 0), ("f", 0), ("f", 1)])
     assert [(r["kept"], r["precision"], r["recall"]) for r in rows] == [(3, 1.0, 1.0), (2, 1.0, 0.5)]
+
+
+@hsettings(max_examples=10, deadline=None)
+@given(st.floats(0.5, 60.0), st.floats(0.0, 2 * np.pi))
+def test_a_renders_ok_normals_are_scored_against_the_true_normal_at_their_bp(theta, phi):
+    # the true normal at each ok estimate's BP pixel is its own recommended normal turned by theta (about an axis
+    # across it at angle phi): each error is theta to round-off, counted under what it fell on; a BP off the
+    # surface (NaN) is left out; real frames (no true normals) get no section
+    import dataclasses
+    import tempfile
+    from pathlib import Path
+
+    from simtest.evaluate.detection import evaluate_frames
+    from simtest.reconstruct.io import estimate_to_dict
+    from simtest.reconstruct.pipeline import reconstruct
+    from simtest.reconstruct.settings import ReconSettings
+
+    with tempfile.TemporaryDirectory() as tmp:
+        frames = labelled_real_frames(_labelled_set(Path(tmp)))
+    assert evaluate_frames(frames)["normal_error_deg"] == {}
+    posed, oks = [], 0
+    for fr in frames:
+        normals = np.full(fr.image.shape[:2] + (3,), np.nan)
+        for s in (estimate_to_dict(e) for e in reconstruct(fr.image, fr.camera, settings=ReconSettings.for_frames())):
+            if s["status"] != "ok":
+                continue
+            n = np.asarray(s["normal"], dtype=np.float64)
+            a = np.cross(n, [np.cos(phi), np.sin(phi), 0.0])
+            a /= np.linalg.norm(a)
+            t = np.radians(theta)  # Rodrigues' rotation of n about a (a is across n)
+            u, v = (int(round(x)) for x in s["bp_px"])
+            normals[v, u] = n * np.cos(t) + np.cross(a, n) * np.sin(t)
+            oks += 1
+        posed.append(dataclasses.replace(fr, normals_px=normals))
+    res = evaluate_frames(posed)
+    errors = [r["error_deg"] for f in res["frames"] for r in f["candidates_detail"] if r.get("error_deg") is not None]
+    assert oks >= 1 and len(errors) == oks
+    np.testing.assert_allclose(errors, theta, atol=1e-6)  # (atan2 of unit vectors: round-off near 1e-12 deg)
+    assert sum(e["n"] for e in res["normal_error_deg"].values()) == oks
+    from simtest.evaluate.cli import _detection_markdown  # (the report's table: a row per what they fell on)
+
+    md = _detection_markdown(res | {"source": "posed"})
+    for on, e in res["normal_error_deg"].items():
+        assert e["median"] == pytest.approx(theta, abs=1e-6) and f"| {on} | {e['n']} | {e['median']:.2f} |" in md

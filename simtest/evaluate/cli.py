@@ -251,7 +251,15 @@ def _detection_markdown(results: dict) -> str:
           "Status of every candidate: " + ", ".join(f"{k} {v}" for k, v in results["statuses"].items())
           + " (reasons in simtest.reconstruct.failures.REASONS).", "",
           "The targets no ok estimate found (pooled), by the status of the first candidate on them: "
-          + (", ".join(f"{k} {v}" for k, v in results.get("missed_by", {}).items()) or "none") + ".", "",
+          + (", ".join(f"{k} {v}" for k, v in results.get("missed_by", {}).items()) or "none") + ".", ""]
+    if results.get("normal_error_deg"):
+        L += ["The ok estimates' recommended normals (without the light-aware fits) against the render's true normal "
+              "at the BP (its shading normal, with the micro-relief where the scene has one), by what they fall on:", "",
+              "| on | n | median error (deg) | 90th percentile (deg) |", "|---|---|---|---|"]
+        L += [f"| {on} | {e['n']} | {e['median']:.2f} | {e['p90']:.2f} |"
+              for on, e in results["normal_error_deg"].items()]
+        L.append("")
+    L += [
           "![hits, false positives and misses](detection.png)", "", "## Confidence", "",
           "Reliability of each candidate's confidence (simtest.reconstruct.verify.confidence): per bin, "
           "the fraction of candidates that are a target's first match.", "",

@@ -40,6 +40,7 @@ matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 from simtest.evaluate.calibration import cross_validated_confidence, ranking_auc, reliability  # noqa: E402
+from simtest.geometry.angles import angle_between_deg  # noqa: E402
 from simtest.geometry.cameras import PinholeCamera  # noqa: E402
 from simtest.harness.protocols import mesh_pose_overrides, realisation_overrides  # noqa: E402
 from simtest.harness.suite import bundled_suite_names, load_suite, realisation_seed  # noqa: E402
@@ -308,6 +309,9 @@ class LabelledFrame:
     label_px : ndarray of shape (H, W), int32, or None
         Each pixel's structure as 1 + its index in ``structures`` (0: none), from a labelled set's
         label map; None: structures placed by their points alone.
+    normals_px : ndarray of shape (H, W, 3), or None
+        A render's true unit normals, camera frame (the shading normals, micro-relief included, where the
+        scene has them; NaN off the surface); None: unknown (real frames).
     """
 
     name: str
@@ -317,6 +321,7 @@ class LabelledFrame:
     lights: object = None
     specular_px: np.ndarray | None = None
     label_px: np.ndarray | None = None
+    normals_px: np.ndarray | None = None
 
 
 def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame]:
@@ -493,7 +498,8 @@ def _rendered_frame(spec, seed: int | None, name: str) -> LabelledFrame:
     targets = highlight_targets(res.highlights, res.specular, valid)
     structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND, t) for t in targets]
     specular = specular_pixels(res.specular, res.linear, valid)
-    return LabelledFrame(name, res.frame, res.camera, structs, res.light_rig, specular)
+    normals = res.normals if res.shading_normals is None else res.shading_normals
+    return LabelledFrame(name, res.frame, res.camera, structs, res.light_rig, specular, normals_px=normals)
 
 
 def suite_frames(suite: str, *, realisations: int | None = None, progress=None) -> list[LabelledFrame]:
@@ -595,7 +601,11 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
         ests = reconstruct(fr.image, fr.camera, settings=settings, lights=fr.lights)
         if keep is not None:
             keep.append(ests)
-        sc, rows = score_frame(fr.name, [estimate_to_dict(e) for e in ests], fr.structures, fr.specular_px, fr.label_px)
+        specs = [estimate_to_dict(e) for e in ests]
+        sc, rows = score_frame(fr.name, specs, fr.structures, fr.specular_px, fr.label_px)
+        if fr.normals_px is not None:  # the recommended normal's angle to the truth at its BP
+            for s, r in zip(specs, rows):
+                r["error_deg"] = _normal_error_deg(s, fr.normals_px) if s["status"] == "ok" else None
         scores.append(sc)
         missed, why = [], Counter()  # the targets no ok estimate found, by the first candidate's status on them
         for j, s in enumerate(fr.structures):
@@ -611,6 +621,10 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     passing = np.array([r["status"] in PASSING for _, r in cand], dtype=bool)
     tp_pass = np.array([r["tp_pass"] for _, r in cand], dtype=bool)
     statuses = Counter(r["status"] for f in frames_out for r in f["candidates_detail"])
+    errors: dict[str, list[float]] = {}  # what an ok estimate fell on -> its normals' errors (renders), deg
+    for r in (r for f in frames_out for r in f["candidates_detail"] if r.get("error_deg") is not None):
+        on = "isolated" if r["tp_ok"] else ("duplicate" if r["on"] == TARGET_KIND else r["on"])  # (as ok_on)
+        errors.setdefault(on, []).append(r["error_deg"])
     pool = pooled(scores).as_dict()
     return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(),
             "statuses": dict(sorted(statuses.items())),
@@ -618,7 +632,19 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
             "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[passing], tp[passing])},
             "precision_recall": precision_recall(conf[passing], tp_pass[passing], pool["targets"], target_ids=[
                 (name, r["target"]) for name, r in cand if r["status"] in PASSING]),  # a target is a frame's
-            "default_min_confidence": _default_floor(frames, settings)}
+            "default_min_confidence": _default_floor(frames, settings),
+            "normal_error_deg": {on: {"n": len(e), "median": float(np.median(e)), "p90": float(np.percentile(e, 90))}
+                                 for on, e in sorted(errors.items())}}
+
+
+def _normal_error_deg(spec: dict, normals_px: np.ndarray) -> float | None:
+    """The angle (deg) between an estimate's recommended normal and the true normal at the pixel of its BP
+    (None where the BP falls off the image or the surface)."""
+    u, v = (int(round(float(x))) for x in spec["bp_px"])
+    h, w = normals_px.shape[:2]
+    if spec.get("normal") is None or not (0 <= u < w and 0 <= v < h) or not np.isfinite(normals_px[v, u]).all():
+        return None
+    return float(angle_between_deg(np.asarray(spec["normal"], dtype=np.float64), normals_px[v, u]))
 
 
 def reliability_figure(results: dict):
