@@ -310,8 +310,8 @@ class LabelledFrame:
         Each pixel's structure as 1 + its index in ``structures`` (0: none), from a labelled set's
         label map; None: structures placed by their points alone.
     normals_px : ndarray of shape (H, W, 3), or None
-        A render's true unit normals, camera frame (the shading normals, micro-relief included, where the
-        scene has them; NaN off the surface); None: unknown (real frames).
+        A render's true unit normals, camera frame (shading normals, micro-relief included where the scene has
+        it; NaN off the surface; float16, within 0.05 deg: a suite's frames are held at once); None: real frames.
     """
 
     name: str
@@ -498,7 +498,7 @@ def _rendered_frame(spec, seed: int | None, name: str) -> LabelledFrame:
     targets = highlight_targets(res.highlights, res.specular, valid)
     structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND, t) for t in targets]
     specular = specular_pixels(res.specular, res.linear, valid)
-    normals = res.normals if res.shading_normals is None else res.shading_normals
+    normals = (res.normals if res.shading_normals is None else res.shading_normals).astype(np.float16)
     return LabelledFrame(name, res.frame, res.camera, structs, res.light_rig, specular, normals_px=normals)
 
 
@@ -644,7 +644,7 @@ def _normal_error_deg(spec: dict, normals_px: np.ndarray) -> float | None:
     h, w = normals_px.shape[:2]
     if spec.get("normal") is None or not (0 <= u < w and 0 <= v < h) or not np.isfinite(normals_px[v, u]).all():
         return None
-    return float(angle_between_deg(np.asarray(spec["normal"], dtype=np.float64), normals_px[v, u]))
+    return float(angle_between_deg(np.asarray(spec["normal"], dtype=np.float64), normals_px[v, u].astype(np.float64)))
 
 
 def reliability_figure(results: dict):
