@@ -591,9 +591,9 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     -------
     dict
         ``{"frames": [FrameScore.as_dict() + {"candidates_detail": [...], "missed_targets_ok": [[u, v], ...],
-        "missed_by": {status: n}}], "pooled": {...}, "missed_by": {...}, "settings": {...}, ...}``; a missed
-        target is one no ``ok`` estimate found, counted by the status of the first candidate on it (or
-        ``"no candidate"``).
+        "missed_by": {status: n}}], "pooled", "missed_by", "settings", "normal_error_deg": {on: {"n", "median",
+        "p90"}}, ...}``; a missed target is one no ``ok`` estimate found, counted by the status of the first candidate
+        on it (or ``"no candidate"``); with ``normals_px``, each row's ``error_deg`` (deg; ok rows on the surface, else None).
     """
     settings = settings or ReconSettings.for_frames()
     scores, frames_out = [], []
