@@ -258,11 +258,16 @@ def score_frame(name: str, specularities: list[dict], structures: list[Structure
         if ok:
             sc.ok += 1
             sc.ok_tp += tp_ok
-            sc.ok_on["isolated" if tp_ok else ("duplicate" if on == TARGET_KIND else on)] += 1
+            sc.ok_on[_ok_on(tp_ok, on)] += 1
         rows.append({"bp_px": [float(v) for v in s["bp_px"]], "status": s["status"], "on": on,
                      "tp": tp, "tp_ok": tp_ok, "tp_pass": tp_pass, "confidence": s.get("confidence"), "target": j})
     sc.targets_found, sc.targets_found_ok = len(found), len(found_ok)
     return sc, rows
+
+
+def _ok_on(tp_ok: bool, on: str) -> str:
+    """What an ok estimate fell on: ``isolated`` (a target's first), ``duplicate`` (a target found before), else ``on``."""
+    return "isolated" if tp_ok else ("duplicate" if on == TARGET_KIND else on)
 
 
 def _on_specular(specular_px: np.ndarray | None, uv) -> str:
@@ -623,8 +628,7 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     statuses = Counter(r["status"] for f in frames_out for r in f["candidates_detail"])
     errors: dict[str, list[float]] = {}  # what an ok estimate fell on -> its normals' errors (renders), deg
     for r in (r for f in frames_out for r in f["candidates_detail"] if r.get("error_deg") is not None):
-        on = "isolated" if r["tp_ok"] else ("duplicate" if r["on"] == TARGET_KIND else r["on"])  # (as ok_on)
-        errors.setdefault(on, []).append(r["error_deg"])
+        errors.setdefault(_ok_on(r["tp_ok"], r["on"]), []).append(r["error_deg"])
     pool = pooled(scores).as_dict()
     return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(),
             "statuses": dict(sorted(statuses.items())),
