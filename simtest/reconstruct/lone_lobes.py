@@ -29,6 +29,7 @@ guide told apart as above.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 
@@ -45,7 +46,7 @@ from simtest.reconstruct.lightaware.plane_solve import start_depths
 from simtest.reconstruct.lightaware.solve import _bisector_plane
 from simtest.reconstruct.recommend import with_guide_spread
 from simtest.reconstruct.rig_lobes import _bright_region, _inside
-from simtest.reconstruct.rig_pairs import _DEPTHS, _imaged_curves, estimate_wander_px, guide_specular_points
+from simtest.reconstruct.rig_pairs import dense_curve, estimate_wander_px, guide_specular_points
 from simtest.reconstruct.verify import weak_white_peaks
 
 __all__ = ["lone_lobe_rows", "lone_fit_rows", "lone_rival"]
@@ -269,12 +270,13 @@ def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> boo
     ring = _reach(est, 1.0)
     height = _rise(values, bp, ring)[0]
     tested = False
-    for i, j, uv in _imaged_curves(camera, L, ray, _DEPTHS):
-        if i == own:
+    for i, j in itertools.permutations(range(len(L)), 2):
+        if i == own or not np.linalg.norm(L[i] - L[j]) > 0:
             continue
+        depths, uv = dense_curve(camera, L[i], L[j], ray, values.shape, PAIR_TOL_PX)  # (no lobe between samples)
         use = np.flatnonzero(_in_frame(uv, values.shape)
                              & (np.abs(uv - bp).max(axis=1) > LIGHT_AWARE_ROI_SCALE * ring + PAIR_TOL_PX))
-        for d, p in zip(_DEPTHS[use], uv[use]):
+        for d, p in zip(depths[use], uv[use]):
             spec = plane_rig_intensity(unit(camera.pixel_to_ray(np.stack([bp, p])), -1),
                                        *_bisector_plane(ray, L[i], d), rig, fit.roughness)
             if not spec[0] > 0 or spec[1] / spec[0] < GUIDE_SEEN_REL:

@@ -29,12 +29,15 @@ from simtest.reconstruct.evidence_pixels import ellipse_level
 from simtest.reconstruct.isophote import polygon_contains
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves", "pair_starts",
-           "guide_specular_points", "patch_specular_points", "other_lobe_centres", "pair_plane", "pair_partners",
+           "guide_specular_points", "dense_curve", "patch_specular_points", "other_lobe_centres", "pair_plane", "pair_partners",
            "encloses_only_partners", "bp_wander_px", "box_wander_px", "estimate_wander_px", "rig_twins"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
 DEPTH_SAMPLES = 256
 _DEPTHS = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
+#: The most pieces :func:`dense_curve` cuts one depth step into (a step whose image runs off towards the
+#: horizon is thousands of px long; a frame is at most a few thousand wide).
+_MOST_CUTS = 4096
 
 
 def _curve(ray, Li, Lj, depths) -> np.ndarray:
@@ -58,10 +61,56 @@ def _imaged_curves(camera, L: np.ndarray, ray, depths: np.ndarray):
     for i in range(len(L)):
         for j in range(len(L)):
             if np.linalg.norm(L[i] - L[j]) > 0:
-                flat = (Xj := _curve(unit(ray, -1), L[i], L[j], depths)).reshape(-1, 3)
-                uv, good = np.full((len(flat), 2), np.nan), np.isfinite(flat).all(axis=1)
-                uv[good] = camera.ray_to_pixel(flat[good]) if good.any() else uv[good]
-                yield i, j, uv.reshape(*Xj.shape[:-1], 2)
+                yield i, j, _imaged_curve(camera, L[i], L[j], ray, depths)
+
+
+def _imaged_curve(camera, Li, Lj, ray, depths: np.ndarray) -> np.ndarray:
+    """Guide j's specular points imaged (D, 2) or (N, D, 2) for the BP as guide i's (:func:`_imaged_curves`)."""
+    flat = (Xj := _curve(unit(ray, -1), Li, Lj, depths)).reshape(-1, 3)
+    uv, good = np.full((len(flat), 2), np.nan), np.isfinite(flat).all(axis=1)
+    uv[good] = camera.ray_to_pixel(flat[good]) if good.any() else uv[good]
+    return uv.reshape(*Xj.shape[:-1], 2)
+
+
+def dense_curve(camera, Li, Lj, ray, shape, step_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Guide j's imaged specular points for the BP as guide i's, sampled about every ``step_px`` px in a frame.
+
+    The depth grid (:data:`DEPTH_SAMPLES` geometric steps) images the curve in steps that grow as 1 / d^2: a
+    near, steep plane puts consecutive samples tens of px apart, and a test reading the image within a few px of
+    each sample misses a lobe between them. Each segment with an end in the frame is cut into as many geometric
+    depth steps as its image length holds ``step_px`` (the image step varies slowly within a segment).
+
+    Parameters
+    ----------
+    camera : CameraModel
+        The camera model.
+    Li, Lj : array_like of shape (3,)
+        The two guides' positions, mm, camera frame.
+    ray : array_like of shape (3,)
+        The BP's viewing ray, camera frame.
+    shape : tuple of int
+        The frame's (rows, columns).
+    step_px : float
+        The largest image step wanted, px (> 0).
+
+    Returns
+    -------
+    depths : ndarray of shape (D,)
+        Depths of the BP along its ray, mm, increasing.
+    uv : ndarray of shape (D, 2)
+        Guide j's specular point imaged at each depth, px (NaN: inadmissible).
+    """
+    uv = _imaged_curve(camera, Li, Lj, ray, _DEPTHS)
+    inside = np.isfinite(uv).all(axis=1) & (uv >= -0.5).all(axis=1) & (uv[:, 0] <= shape[1] - 0.5) \
+        & (uv[:, 1] <= shape[0] - 0.5)
+    gap = np.linalg.norm(np.diff(uv, axis=0), axis=1)
+    cut = np.isfinite(gap) & (inside[:-1] | inside[1:])
+    k = np.ones(len(gap), np.int64)
+    k[cut] = np.clip(np.ceil(gap[cut] / step_px), 1, _MOST_CUTS)
+    seg = np.repeat(np.arange(len(k)), k)
+    t = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)) / np.repeat(k, k)
+    depths = np.concatenate([_DEPTHS[seg] * (_DEPTHS[seg + 1] / _DEPTHS[seg]) ** t, _DEPTHS[-1:]])
+    return depths, _imaged_curve(camera, Li, Lj, ray, depths)
 
 
 def _resampled(uv: np.ndarray, step: float, centre: np.ndarray, radius: float) -> np.ndarray:
