@@ -22,7 +22,7 @@ from typer.testing import CliRunner
 from simtest.cli import app
 from simtest.geometry.cameras import PinholeCamera
 from simtest.reconstruct.detect_pixels import frame_ceiling
-from simtest.reconstruct.rig_pairs import (PAIR_TOL_PX, bp_wander_px, dense_curve, encloses_only_partners,
+from simtest.reconstruct.rig_pairs import (PAIR_TOL_PX, _dense_curve, bp_wander_px, encloses_only_partners,
                                           other_guide_curves, pair_plane, pair_starts, rig_twins)
 from simtest.simulate.offset import specular_point
 
@@ -77,7 +77,7 @@ def test_the_dense_curve_samples_the_frame_every_step_and_passes_the_other_guide
     # and the other guide's point lies within 0.55 steps of one (half the largest gap). The depth grid alone
     # leaves gaps of tens of px on a near steep plane
     _, cam, X, (uv0, uv1) = _exact_pair(tilt, az, h, f, first)
-    depths, uv = dense_curve(cam, GUIDES_MM[first], GUIDES_MM[1 - first], X[0] / np.linalg.norm(X[0]), (400, 400),
+    depths, uv = _dense_curve(cam, GUIDES_MM[first], GUIDES_MM[1 - first], X[0] / np.linalg.norm(X[0]), (400, 400),
                              step)
     assert np.all(np.diff(depths) > 0) and len(depths) == len(uv)
     inside = np.isfinite(uv).all(axis=1) & np.all((uv >= -0.5) & (uv <= 399.5), axis=1)

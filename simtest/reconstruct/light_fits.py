@@ -31,8 +31,8 @@ from simtest.reconstruct.lightaware import (LightAwareEstimate, cubic_patch_fit,
 from simtest.reconstruct.verify import specular_colour_at
 from simtest.reconstruct.recommend import (_bp_ray_error_beside, bp_error_depth_mm, bp_ray_error_deg,
                                            depth_within_ceiling, with_guide_spread)
-from simtest.reconstruct.rig_pairs import (estimate_wander_px, guide_specular_points, pair_misfit_px, pair_partners,
-                                           pair_starts)
+from simtest.reconstruct.rig_pairs import (_in_frame, estimate_wander_px, guide_specular_points, pair_misfit_px,
+                                           pair_partners, pair_starts)
 
 #: The photometric fit's statuses after which the curved-patch fits run by default (the plane is
 #: not the ROI's surface; docs/decisions/light-aware-recommendation.md).
@@ -268,13 +268,6 @@ def nearest_guide(pts: np.ndarray, bp_uv) -> int:
     the BP ``bp_uv``: the guide that lit the highlight, as a plane fit reads it."""
     gaps = np.linalg.norm(np.where(np.isfinite(pts), pts, np.inf) - np.asarray(bp_uv, np.float64), axis=1)
     return int(np.nanargmin(gaps))
-
-
-def _in_frame(pts: np.ndarray, shape) -> np.ndarray:
-    """Which (u, v) px points of ``pts`` (J, 2) lie in an image of ``shape`` (J,) bool."""
-    h, w = shape[:2]
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(pts).all(axis=1) & (pts >= 0).all(axis=1) & (pts[:, 0] < w) & (pts[:, 1] < h)
 
 
 def _rise(gray: np.ndarray, uv, ring: float) -> tuple[float, float]:

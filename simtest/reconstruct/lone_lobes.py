@@ -38,7 +38,7 @@ from simtest.geometry.angles import unit
 from simtest.geometry.lights import LightRig
 from simtest.reconstruct.detect import default_full_scale
 from simtest.reconstruct.detect_pixels import luma, noise_sigma
-from simtest.reconstruct.light_fits import (PLANE_ONLY, _fit_intensities, _in_frame, _reach, _rise,
+from simtest.reconstruct.light_fits import (PLANE_ONLY, _fit_intensities, _reach, _rise,
                                             light_aware_estimates, nearest_guide)
 from simtest.reconstruct.lightaware.model import plane_rig_intensity
 from simtest.reconstruct.lightaware.plane import RETRY_START_DEPTHS, FitSettings
@@ -46,7 +46,7 @@ from simtest.reconstruct.lightaware.plane_solve import start_depths
 from simtest.reconstruct.lightaware.solve import _bisector_plane
 from simtest.reconstruct.recommend import with_guide_spread
 from simtest.reconstruct.rig_lobes import _bright_region, _inside
-from simtest.reconstruct.rig_pairs import dense_curve, estimate_wander_px, guide_specular_points
+from simtest.reconstruct.rig_pairs import _dense_curve, _in_frame, estimate_wander_px, guide_specular_points
 from simtest.reconstruct.verify import weak_white_peaks
 
 __all__ = ["lone_lobe_rows", "lone_fit_rows", "lone_rival"]
@@ -273,7 +273,7 @@ def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> boo
     for i, j in itertools.permutations(range(len(L)), 2):
         if i == own or not np.linalg.norm(L[i] - L[j]) > 0:
             continue
-        depths, uv = dense_curve(camera, L[i], L[j], ray, values.shape, PAIR_TOL_PX)  # (no lobe between samples)
+        depths, uv = _dense_curve(camera, L[i], L[j], ray, values.shape, PAIR_TOL_PX)  # (no lobe between samples)
         use = np.flatnonzero(_in_frame(uv, values.shape)
                              & (np.abs(uv - bp).max(axis=1) > LIGHT_AWARE_ROI_SCALE * ring + PAIR_TOL_PX))
         for d, p in zip(depths[use], uv[use]):

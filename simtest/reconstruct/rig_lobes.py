@@ -68,12 +68,12 @@ from simtest.reconstruct._pixels import Roi, uv_to_rc
 from simtest.reconstruct.assemble import SpecularityEstimate
 from simtest.reconstruct.detect_pixels import interior_top, luma, noise_sigma
 from simtest.reconstruct.isophote import polygon_contains
-from simtest.reconstruct.light_fits import (NOT_FITTED, PLANE_ONLY, _in_frame, _offset_rig, _plane, _reach,
+from simtest.reconstruct.light_fits import (NOT_FITTED, PLANE_ONLY, _offset_rig, _plane, _reach,
                                            light_aware_estimates, lobe_size_px)
 from simtest.reconstruct.lightaware import LightAwareEstimate
 from simtest.reconstruct.recommend import without_guide_spread
-from simtest.reconstruct.rig_pairs import (_model, _specular_points, estimate_wander_px, guide_specular_points,
-                                           other_guide_curves, pair_plane, patch_specular_points)
+from simtest.reconstruct.rig_pairs import (_in_frame, _model, _specular_points, estimate_wander_px,
+                                           guide_specular_points, other_guide_curves, pair_plane, patch_specular_points)
 
 __all__ = ["FUSED_LOBE_LEVEL", "fused_lobe_candidates", "guide_specular_points", "isophote_holds", "partner_rows",
            "shared_plane_rows", "split_fused_lobes", "splittable"]

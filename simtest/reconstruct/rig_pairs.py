@@ -29,13 +29,13 @@ from simtest.reconstruct.evidence_pixels import ellipse_level
 from simtest.reconstruct.isophote import polygon_contains
 
 __all__ = ["DEPTH_MIN_MM", "DEPTH_MAX_MM", "DEPTH_SAMPLES", "PAIR_TOL_PX", "other_guide_curves", "pair_starts",
-           "guide_specular_points", "dense_curve", "patch_specular_points", "other_lobe_centres", "pair_plane", "pair_partners",
+           "guide_specular_points", "patch_specular_points", "other_lobe_centres", "pair_plane", "pair_partners",
            "encloses_only_partners", "bp_wander_px", "box_wander_px", "estimate_wander_px", "rig_twins"]
 
 #: Depths sampled, geometrically spaced (the curve's image step shrinks as 1 / d^2).
 DEPTH_SAMPLES = 256
 _DEPTHS = np.geomspace(DEPTH_MIN_MM, DEPTH_MAX_MM, DEPTH_SAMPLES)
-#: The most pieces :func:`dense_curve` cuts one depth step into (a step whose image runs off towards the
+#: The most pieces :func:`_dense_curve` cuts one depth step into (a step whose image runs off towards the
 #: horizon is thousands of px long; a frame is at most a few thousand wide).
 _MOST_CUTS = 4096
 
@@ -72,37 +72,19 @@ def _imaged_curve(camera, Li, Lj, ray, depths: np.ndarray) -> np.ndarray:
     return uv.reshape(*Xj.shape[:-1], 2)
 
 
-def dense_curve(camera, Li, Lj, ray, shape, step_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """Guide j's imaged specular points for the BP as guide i's, sampled about every ``step_px`` px in a frame.
+def _in_frame(pts: np.ndarray, shape) -> np.ndarray:
+    """Which (u, v) px points of ``pts`` (J, 2) lie in an image of ``shape`` (J,) bool."""
+    h, w = shape[:2]
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(pts).all(axis=1) & (pts >= 0).all(axis=1) & (pts[:, 0] < w) & (pts[:, 1] < h)
 
-    The depth grid (:data:`DEPTH_SAMPLES` geometric steps) images the curve in steps that grow as 1 / d^2: a
-    near, steep plane puts consecutive samples tens of px apart, and a test reading the image within a few px of
-    each sample misses a lobe between them. Each segment with an end in the frame is cut into as many geometric
-    depth steps as its image length holds ``step_px`` (the image step varies slowly within a segment).
 
-    Parameters
-    ----------
-    camera : CameraModel
-        The camera model.
-    Li, Lj : array_like of shape (3,)
-        The two guides' positions, mm, camera frame.
-    ray : array_like of shape (3,)
-        The BP's viewing ray, camera frame.
-    shape : tuple of int
-        The frame's (rows, columns).
-    step_px : float
-        The largest image step wanted, px (> 0).
-
-    Returns
-    -------
-    depths : ndarray of shape (D,)
-        Depths of the BP along its ray, mm, increasing.
-    uv : ndarray of shape (D, 2)
-        Guide j's specular point imaged at each depth, px (NaN: inadmissible).
-    """
+def _dense_curve(camera, Li, Lj, ray, shape, step_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(depths (D,), uv (D, 2))``: :func:`_imaged_curve` on the depth grid with each step that has an end in a
+    frame of ``shape`` (rows, columns) cut into geometric pieces by its image length, about one a ``step_px`` px:
+    the grid's image step grows as 1 / d^2, tens of px on a near steep plane, where a lobe may lie between samples."""
     uv = _imaged_curve(camera, Li, Lj, ray, _DEPTHS)
-    inside = np.isfinite(uv).all(axis=1) & (uv >= -0.5).all(axis=1) & (uv[:, 0] <= shape[1] - 0.5) \
-        & (uv[:, 1] <= shape[0] - 0.5)
+    inside = _in_frame(uv, shape)
     gap = np.linalg.norm(np.diff(uv, axis=0), axis=1)
     cut = np.isfinite(gap) & (inside[:-1] | inside[1:])
     k = np.ones(len(gap), np.int64)
