@@ -412,3 +412,50 @@ def test_a_renders_ok_normals_are_scored_against_the_true_normal_at_their_bp(the
     md = _detection_markdown(res | {"source": "posed"})
     for on, e in res["normal_error_deg"].items():
         assert e["median"] == pytest.approx(theta, abs=1e-6) and f"| {on} | {e['n']} | {e['median']:.2f} |" in md
+
+
+@hsettings(max_examples=4, deadline=None)
+@given(rising=st.booleans(), scale=st.floats(0.1, 20.0))
+def test_the_confidence_is_ranked_against_the_normals_error(rising, scale):
+    # the true normal at each ok BP is its own normal turned by an angle that rises (or falls) strictly with the
+    # estimate's confidence: Spearman's rho is +1 (or -1) exactly, whatever the scale, and the report says it
+    import dataclasses
+    import tempfile
+    from pathlib import Path
+
+    from simtest.evaluate.cli import _detection_markdown
+    from simtest.evaluate.detection import evaluate_frames
+    from simtest.reconstruct.io import estimate_to_dict
+    from simtest.reconstruct.pipeline import reconstruct
+    from simtest.reconstruct.settings import ReconSettings
+
+    with tempfile.TemporaryDirectory() as tmp:  # four tiles, a glint each, 80 to 190 levels over the tissue
+        rng = np.random.default_rng(7)
+        img = np.clip(60 + rng.normal(0.0, 2.0, (40, 160, 3)), 0, 255)  # (the noise the significance reads)
+        yy, xx = np.mgrid[0:40, 0:40]
+        for k, top in enumerate((80, 120, 160, 190)):
+            blob = top * np.exp(-((xx - 20) ** 2 + (yy - 20) ** 2) / (2 * 1.8 ** 2))
+            img[:, 40 * k:40 * k + 40] += blob[..., None]
+        Image.fromarray(np.clip(img, 0, 255).astype(np.uint8)).save(Path(tmp) / "frames.png")
+        (Path(tmp) / "labels.json").write_text(json.dumps({"header": {"image": "frames.png", "tile_px": 40}, "tiles": {
+            f"r0c{k}": [{"u": 20, "v": 20, "area_px": 12, "kind": "isolated"}] for k in range(4)}}))
+        frames = labelled_real_frames(Path(tmp) / "labels.json")
+    assert evaluate_frames(frames)["confidence_vs_error"] is None  # (no true normals: nothing to rank)
+    posed, confs = [], []
+    for fr in frames:
+        normals = np.full(fr.image.shape[:2] + (3,), np.nan)
+        for s in (estimate_to_dict(e) for e in reconstruct(fr.image, fr.camera, settings=ReconSettings.for_frames())):
+            if s["status"] == "ok":
+                n = np.asarray(s["normal"], dtype=np.float64)
+                a = np.cross(n, [1.0, 0.0, 0.0])
+                a /= np.linalg.norm(a)
+                t = np.radians(scale * (s["confidence"] if rising else 1.0 - s["confidence"]))
+                u, v = (int(round(x)) for x in s["bp_px"])
+                normals[v, u] = n * np.cos(t) + np.cross(a, n) * np.sin(t)
+                confs.append(s["confidence"])
+        posed.append(dataclasses.replace(fr, normals_px=normals))
+    assert len(set(confs)) >= 3  # (the premise: confidences to rank)
+    res = evaluate_frames(posed)
+    got = res["confidence_vs_error"]
+    assert got["n"] == len(confs) and got["rho"] == pytest.approx(1.0 if rising else -1.0, abs=1e-12)
+    assert f"Spearman's rho {got['rho']:+.2f} (n {got['n']}," in _detection_markdown(res | {"source": "posed"})

@@ -259,6 +259,10 @@ def _detection_markdown(results: dict) -> str:
         L += [f"| {on} | {e['n']} | {e['median']:.2f} | {e['p90']:.2f} |"
               for on, e in results["normal_error_deg"].items()]
         L.append("")
+    if rank := results.get("confidence_vs_error"):
+        L += [f"Confidence against the normal's error over these ok estimates: Spearman's rho {rank['rho']:+.2f} "
+              f"(n {rank['n']}, p {rank['p']:.2g}; positive: the more confident, the larger the error). The "
+              "confidence ranks what a candidate is (an isolated highlight), not how accurate its normal is.", ""]
     L += [
           "![hits, false positives and misses](detection.png)", "", "## Confidence", "",
           "Reliability of each candidate's confidence (simtest.reconstruct.verify.confidence): per bin, "

@@ -39,6 +39,7 @@ matplotlib.use("Agg", force=False)
 
 import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
+from simtest._lazy import require  # noqa: E402
 from simtest.evaluate.calibration import cross_validated_confidence, ranking_auc, reliability  # noqa: E402
 from simtest.geometry.angles import angle_between_deg  # noqa: E402
 from simtest.geometry.cameras import PinholeCamera  # noqa: E402
@@ -638,7 +639,19 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
                 (name, r["target"]) for name, r in cand if r["status"] in PASSING]),  # a target is a frame's
             "default_min_confidence": _default_floor(frames, settings),
             "normal_error_deg": {on: {"n": len(e), "median": float(np.median(e)), "p90": float(np.percentile(e, 90))}
-                                 for on, e in sorted(errors.items())}}
+                                 for on, e in sorted(errors.items())},
+            "confidence_vs_error": _rank_correlation([r for f in frames_out for r in f["candidates_detail"]])}
+
+
+def _rank_correlation(rows: list[dict]) -> dict | None:
+    """Spearman's rank correlation of the ok rows' confidence with their normals' error (``{"n", "rho", "p"}``;
+    positive: the more confident, the worse the normal); None under three rows or where either is constant."""
+    pairs = np.array([(r["confidence"], r["error_deg"]) for r in rows
+                      if r.get("error_deg") is not None and r.get("confidence") is not None], np.float64).reshape(-1, 2)
+    if len(pairs) < 3 or np.ptp(pairs, axis=0).min() == 0:
+        return None
+    got = require("scipy.stats").spearmanr(pairs[:, 0], pairs[:, 1])
+    return {"n": len(pairs), "rho": float(got.statistic), "p": float(got.pvalue)}
 
 
 def _normal_error_deg(spec: dict, normals_px: np.ndarray) -> float | None:
