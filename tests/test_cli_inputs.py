@@ -90,6 +90,32 @@ def test_npy_that_is_no_image_is_one_line_naming_file_shape_and_dtype(files, tmp
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("dtype", ["float64", "int16", "uint32"])
+def test_a_tiff_of_any_depth_reads_as_rgb_or_is_one_line(files, tmp_path, dtype):
+    # a 3-channel TIFF of a depth OpenCV's colour conversion does not take (it takes 8U, 16U, 32F): the
+    # float64 one reads as the RGB it holds and reconstructs as its float32 twin does; the integer ones are
+    # one line naming the dtype (a traceback from cv2.cvtColor before)
+    import tifffile
+
+    # a white highlight on tissue of unequal R, G, B (the channel order shows)
+    rgb = np.minimum(_plane()[..., None] / 60000.0 + [0.45, 0.25, 0.2], 1.0)
+    tifffile.imwrite(tmp_path / "f.tif", (rgb * (1 if dtype == "float64" else 1000)).astype(dtype),
+                     photometric="rgb")
+    res = runner.invoke(app, ["reconstruct", str(tmp_path / "f.tif"), "-k", str(files["K"]), "-o", str(tmp_path / "o")])
+    if dtype != "float64":
+        _one_line(res, 2, "f.tif", dtype, "expected an image")
+        return
+    assert res.exit_code == 0, res.output
+    from simtest.reconstruct.images import load_image
+
+    np.testing.assert_array_equal(load_image(tmp_path / "f.tif"), rgb)  # (RGB as stored, bit for bit)
+    tifffile.imwrite(tmp_path / "f32.tif", rgb.astype(np.float32), photometric="rgb")
+    twin = runner.invoke(app, ["reconstruct", str(tmp_path / "f32.tif"), "-k", str(files["K"]),
+                               "-o", str(tmp_path / "o32")])
+    got, want = (json.loads((tmp_path / d / "estimates.json").read_text())["specularities"] for d in ("o", "o32"))
+    assert [s["status"] for s in got] == [s["status"] for s in want] and "ok" in [s["status"] for s in got]
+
+
 def test_frames_of_two_sizes_are_refused_naming_the_frame(files, tmp_path):
     res = runner.invoke(app, ["reconstruct", str(files["frames"]), "-k", str(files["K"]),
                               "-o", str(tmp_path / "o"), "-j", "1"])

@@ -235,10 +235,8 @@ def load_image(path) -> "np.ndarray":  # noqa: F821
     if damage:
         raise InputError(f"{path}: damaged: the decoder reported "
                          f"{damage if len(damage) <= 160 else damage[:157] + '...'}")
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    elif img.ndim == 3 and img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
+    if img.ndim == 3 and img.shape[2] in (3, 4):  # OpenCV's BGR(A) to RGB, alpha dropped (any depth: cvtColor
+        img = np.ascontiguousarray(img[..., 2::-1])  # takes 8U, 16U and 32F only, a TIFF holds more)
     return _checked(img, path)
 
 
