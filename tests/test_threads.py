@@ -65,3 +65,31 @@ def test_opencv_runs_on_one_thread_here_and_in_forked_workers_and_is_restored():
         assert cv2.getNumThreads() == 2
     finally:
         cv2.setNumThreads(before)
+
+
+def test_the_light_aware_step_runs_every_stage_on_one_blas_thread(monkeypatch):
+    # the whole light-aware step of `simtest reconstruct -k camera.json` (its last stage here), not only the fits'
+    # pool: a stage on two BLAS threads (the lone lobes' refits once were) sums in another order, so a pinned
+    # sensor-like frame's depth sigma differed in its last bit with the thread count, at 1.6 times the CPU
+    import simtest.reconstruct.rig_centroid as rc
+
+    seen = []
+    monkeypatch.setattr(rc, "lone_lobe_rows", lambda image, out, *a, **k: seen.append(_blas_threads()) or out)
+    with threadpool_limits(limits=2):
+        assert rc.light_aware_with_rig(np.zeros((8, 8)), [], np.eye(3), None) == []
+        assert all(n == 2 for n in _blas_threads())  # (restored after)
+    assert seen and all(n == 1 for n in seen[0])
+
+
+def test_a_suite_on_one_worker_runs_on_one_blas_thread(monkeypatch):
+    # `simtest validate --workers 1` runs the cases in this process: on one BLAS thread, as its workers do
+    import simtest.harness.runner as runner
+    from simtest.harness.suite import suite_from_dict
+
+    seen, real = [], runner.run_case_chunk
+    monkeypatch.setattr(runner, "run_case_chunk", lambda *a, **k: seen.append(_blas_threads()) or real(*a, **k))
+    suite = suite_from_dict({"suite": {"name": "one", "realisations": 1, "seed": 3},
+                             "sweep": [{"name": "theta", "parameter": "theta_deg", "values": [20.0]}]})
+    with threadpool_limits(limits=2):
+        runner.run_suite(suite, workers=1, progress=False)
+    assert seen and all(n == 1 for s in seen for n in s)

@@ -329,8 +329,9 @@ def run_suite(suite: Suite, *, workers: int | None = None, progress: bool = True
             workers = _run_on_cluster(scheduler, tasks, estimators, suite.seed, suite.external,
                                       lambda r: record(r, bar))
         elif workers == 1:
-            for c, s, e in tasks:
-                record(run_case_chunk(c, estimators, suite.seed, s, e, suite.external), bar)
+            with one_thread_each():  # (as in the workers: the same bits whatever the number of workers)
+                for c, s, e in tasks:
+                    record(run_case_chunk(c, estimators, suite.seed, s, e, suite.external), bar)
         else:
             # no inherited Mitsuba/LLVM threads; an error or a signal stops the workers at once
             with one_thread_each(), worker_pool(workers, mp_context=clean_context(), initializer=_worker_init) as pool:

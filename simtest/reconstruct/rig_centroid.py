@@ -25,6 +25,7 @@ import math
 
 import numpy as np
 
+from simtest._threads import one_thread_each
 from simtest.decisions import (BP_PLACE_SIGMA_PX, FUSED_LOBE_LEVEL, FUSED_SEPARATION_MAX, LIGHT_AWARE_ROI_SCALE,
                                PAIR_DEPTH_MAX_MM, PAIR_DEPTH_MIN_MM, PAIR_TOL_PX)
 from simtest.geometry.lights import Light, LightRig
@@ -182,6 +183,7 @@ def _obeys_reflection(est, camera, rig: LightRig):
     return dataclasses.replace(est, light_aware={**fits, **new}) if new else est
 
 
+@one_thread_each()  # every step's BLAS on one thread, as in the fits' workers: the same bits on any machine
 def light_aware_with_rig(image, estimates, camera, rig: LightRig | None, *, workers: int = 1, on_highlight=None,
                          **kwargs) -> list:
     """The light-aware step of one image or frame as ``simtest reconstruct`` runs it:
