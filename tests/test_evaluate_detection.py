@@ -459,3 +459,32 @@ def test_the_confidence_is_ranked_against_the_normals_error(rising, scale):
     got = res["confidence_vs_error"]
     assert got["n"] == len(confs) and got["rho"] == pytest.approx(1.0 if rising else -1.0, abs=1e-12)
     assert f"Spearman's rho {got['rho']:+.2f} (n {got['n']}," in _detection_markdown(res | {"source": "posed"})
+
+
+def test_light_aware_scoring_scores_what_the_command_gives(tmp_path):
+    # a sensor-like plane under the two guides (test_rig_pairs' frame), written with its camera file: with
+    # light_aware, the evaluation's statuses and normals are the command's, bit for bit, and each ok normal's
+    # error is its angle to the plane's normal; without, the fits do not run (no light-aware normal scored)
+    from simtest.evaluate.detection import LabelledFrame, evaluate_frames
+    from simtest.geometry import angle_between_deg
+    from simtest.geometry.camera_file import load_camera
+    from test_rig_pairs import _reconstruct, _write, sensor_plane
+
+    img, K, n, truth = sensor_plane(20.0, 20.0, 1)
+    _write(tmp_path, img, K)
+    specs = _reconstruct(tmp_path)
+    cam = load_camera(tmp_path / "camera.json")
+    frame = LabelledFrame("plane", img, cam.model, [Structure(float(u), float(v), 12.0, "isolated") for u, v in truth],
+                          cam.lights, normals_px=np.broadcast_to(n, img.shape[:2] + (3,)).astype(np.float16),
+                          response=cam.response)
+    rows = evaluate_frames([frame], light_aware=True)["frames"][0]["candidates_detail"]
+    assert [r["status"] for r in rows] == [s["status"] for s in specs]
+    assert any(s["status"] == "ok" and s["normal_from"] != "bp_ray" for s in specs)  # (the premise: fits ran)
+    n16 = n.astype(np.float16).astype(np.float64)
+    for r, s in zip(rows, specs):
+        if s["status"] == "ok":  # (1e-6 deg: the same angle of the same two vectors)
+            assert r["error_deg"] == pytest.approx(angle_between_deg(np.asarray(s["normal"]), n16), abs=1e-6)
+    plain = evaluate_frames([frame])  # (the detection alone: other normals than the command's light-aware ones)
+    errors = [[r["error_deg"] for r in res if r["status"] == "ok"] for res in (rows, plain["frames"][0][
+        "candidates_detail"])]
+    assert plain["light_aware"] is False and errors[0] != errors[1]

@@ -18,9 +18,9 @@ import typer
 from simtest import __version__
 from simtest.evaluate.c3vd import load_frame, scan_sequence
 from simtest.evaluate.operating import precision_recall_figure
-from simtest.evaluate.detection import (cross_validated_report, detection_figure, evaluate_frames,
-                                        groups, is_suite, labelled_real_frames, labeller_agreement,
-                                        reliability_figure, rendered_frames, suite_frames)
+from simtest.evaluate.detection import (cross_validated_report, evaluate_frames, groups, is_suite,
+                                        labelled_real_frames, labeller_agreement, rendered_frames, suite_frames)
+from simtest.evaluate.figures import detection_figure, reliability_figure
 from simtest.evaluate.report import SCHEMA, SCHEMA_VERSION, render_html
 from simtest.evaluate.score import score_highlights, summarise, summarise_depth
 from simtest.geometry.camera_file import load_camera
@@ -148,6 +148,9 @@ def detection_command(
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Render seed (a scene; default the scene's)."),  # noqa: UP045
     realisations: Optional[int] = typer.Option(  # noqa: UP045
         None, "--realisations", "-n", min=1, help="Renders per setting (a suite; default the suite's)."),
+    light_aware: bool = typer.Option(False, "--light-aware", help="Score what `simtest reconstruct -k "
+                                     "camera.json` gives a render: its response, the light-aware fits under its "
+                                     "rig and their recommended normals (slower)."),
 ) -> None:
     """Score highlight detection: precision, recall and F1 of the candidates and of the "ok"
     estimates against labelled isolated highlights, per frame and pooled, with reconstruct's
@@ -173,7 +176,7 @@ def detection_command(
             else:
                 frames = rendered_frames(source, seed=seed)
             progress.add_task(f"reconstructing {len(frames)} frame(s)", total=None)
-            results = evaluate_frames(frames, keep=kept)
+            results = evaluate_frames(frames, keep=kept, light_aware=light_aware)
         results = {"schema": "simtest.evaluate.detection", "schema_version": 1,
                    "simtest_version": __version__, "source": source} | results
         if source.endswith(".json"):
@@ -213,8 +216,11 @@ def _detection_markdown(results: dict) -> str:
          "Targets are the labelled isolated specular highlights; a candidate or an ok estimate is a "
          "true positive when it is the first to fall on a target (a rendered target that gathers k "
          "lights' highlights: one of the first k; see simtest.evaluate.detection). Renders are "
-         "detected and checked under their light rig, without the light-aware fits (which can turn a rig "
-         "partner's row ok in simtest reconstruct). On a render, a candidate on no target falls on `specular` where "
+         + ("reconstructed as simtest reconstruct does with their camera file (response, light rig, light-aware "
+            "fits). " if results.get("light_aware") else
+            "detected and checked under their light rig, without the light-aware fits (which can turn a rig "
+            "partner's row ok in simtest reconstruct; `--light-aware` runs them). ")
+         + "On a render, a candidate on no target falls on `specular` where "
          "its light is mostly specular reflection (a glint that is not an isolated highlight), else on "
          "`unlabelled`.", ""]
     head = ["| {} | targets | candidates | precision | recall | ok | ok precision | ok recall | ok F1 | "
@@ -253,7 +259,9 @@ def _detection_markdown(results: dict) -> str:
           "The targets no ok estimate found (pooled), by the status of the first candidate on them: "
           + (", ".join(f"{k} {v}" for k, v in results.get("missed_by", {}).items()) or "none") + ".", ""]
     if results.get("normal_error_deg"):
-        L += ["The ok estimates' recommended normals (without the light-aware fits) against the render's true normal "
+        how = ("(with the light-aware fits, as `simtest reconstruct` with the camera file)"
+               if results.get("light_aware") else "(without the light-aware fits: `--light-aware` runs them)")
+        L += [f"The ok estimates' recommended normals {how} against the render's true normal "
               "at the BP (its shading normal, with the micro-relief where the scene has one), by what they fall on:", "",
               "| on | n | median error (deg) | 90th percentile (deg) |", "|---|---|---|---|"]
         L += [f"| {on} | {e['n']} | {e['median']:.2f} | {e['p90']:.2f} |"

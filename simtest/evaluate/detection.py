@@ -32,17 +32,13 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import matplotlib
 import numpy as np
-
-matplotlib.use("Agg", force=False)
-
-import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
 
 from simtest._lazy import require  # noqa: E402
 from simtest.evaluate.calibration import cross_validated_confidence, ranking_auc, reliability  # noqa: E402
 from simtest.geometry.angles import angle_between_deg  # noqa: E402
 from simtest.geometry.cameras import PinholeCamera  # noqa: E402
+from simtest.geometry.response import video_response  # noqa: E402
 from simtest.harness.protocols import mesh_pose_overrides, realisation_overrides  # noqa: E402
 from simtest.harness.suite import bundled_suite_names, load_suite, realisation_seed  # noqa: E402
 from simtest.evaluate.operating import precision_recall  # noqa: E402
@@ -51,6 +47,7 @@ from simtest.reconstruct.frame_verify import default_min_confidence  # noqa: E40
 from simtest.reconstruct.images import load_image  # noqa: E402
 from simtest.reconstruct.io import estimate_to_dict  # noqa: E402
 from simtest.reconstruct.pipeline import reconstruct  # noqa: E402
+from simtest.reconstruct.rig_centroid import light_aware_with_rig  # noqa: E402
 from simtest.reconstruct.settings import ReconSettings  # noqa: E402
 from simtest.reconstruct.verify import RESIDUAL_MAX_REL, assess, confidence_features  # noqa: E402
 from simtest.render.render import render_scene  # noqa: E402
@@ -61,8 +58,8 @@ from simtest.scene.spec import load_scene  # noqa: E402
 
 __all__ = ["KINDS", "TARGET_KIND", "SPECULAR_KIND", "PASSING", "TOLERANCE_PX", "Structure", "FrameScore",
            "LabelledFrame", "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames",
-           "rendered_frames", "suite_frames", "evaluate_frames", "detection_figure", "labeller_agreement", "confidence_rows",
-           "cross_validated_report", "reliability_figure"]
+           "rendered_frames", "suite_frames", "evaluate_frames", "labeller_agreement", "confidence_rows",
+           "cross_validated_report"]
 
 #: The kinds of labelled bright structure; ``isolated`` is the target.
 KINDS = ("isolated", "cluster", "streak", "instrument", "overlay", "border", "texture")
@@ -318,6 +315,8 @@ class LabelledFrame:
     normals_px : ndarray of shape (H, W, 3), or None
         A render's true unit normals, camera frame (shading normals, micro-relief included where the scene has
         it; NaN off the surface; float16, within 0.05 deg: a suite's frames are held at once); None: real frames.
+    response : SensorResponse or None
+        A render's video response, as its camera file gives it; None: unknown (linear).
     """
 
     name: str
@@ -328,6 +327,7 @@ class LabelledFrame:
     specular_px: np.ndarray | None = None
     label_px: np.ndarray | None = None
     normals_px: np.ndarray | None = None
+    response: object = None
 
 
 def labelled_real_frames(path, *, focal_px: float = 140.0) -> list[LabelledFrame]:
@@ -505,7 +505,9 @@ def _rendered_frame(spec, seed: int | None, name: str) -> LabelledFrame:
     structs = [Structure(float(t.peak_px[0]), float(t.peak_px[1]), float(t.area_px), TARGET_KIND, t) for t in targets]
     specular = specular_pixels(res.specular, res.linear, valid)
     normals = (res.normals if res.shading_normals is None else res.shading_normals).astype(np.float16)
-    return LabelledFrame(name, res.frame, res.camera, structs, res.light_rig, specular, normals_px=normals)
+    response = video_response(res.spec.sensor) if res.video is not None else None
+    return LabelledFrame(name, res.frame, res.camera, structs, res.light_rig, specular, normals_px=normals,
+                         response=response)
 
 
 def suite_frames(suite: str, *, realisations: int | None = None, progress=None) -> list[LabelledFrame]:
@@ -580,7 +582,8 @@ def _default_floor(frames: list[LabelledFrame], settings) -> float | None:
     return floors.pop() if len(floors) == 1 else None
 
 
-def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | None = None) -> dict:
+def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | None = None,
+                    light_aware: bool = False) -> dict:
     """Reconstruct every frame with ``settings`` (default: ``reconstruct``'s) and score it.
 
     Parameters
@@ -592,6 +595,10 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     keep : list, optional
         Where given, each frame's estimates (``Estimates``) are appended to it, in frame order:
         :func:`cross_validated_report` takes them instead of reconstructing the frames again.
+    light_aware : bool
+        Score what ``simtest reconstruct`` gives with a render's camera file: its response, then the light-aware
+        step under its rig (:func:`~simtest.reconstruct.rig_centroid.light_aware_with_rig`), whose statuses and
+        recommended normals are scored. False: the detection alone (the rig, no response, no fits).
 
     Returns
     -------
@@ -604,10 +611,13 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     settings = settings or ReconSettings.for_frames()
     scores, frames_out = [], []
     for fr in frames:
-        ests = reconstruct(fr.image, fr.camera, settings=settings, lights=fr.lights)
+        response = fr.response if light_aware else None
+        ests = reconstruct(fr.image, fr.camera, settings=settings, lights=fr.lights, response=response)
         if keep is not None:
             keep.append(ests)
-        specs = [estimate_to_dict(e) for e in ests]
+        rows_of = ests if not light_aware or fr.lights is None else light_aware_with_rig(
+            fr.image, ests, fr.camera, fr.lights, cubic=False, response=response)  # (as the command runs it)
+        specs = [estimate_to_dict(e) for e in rows_of]
         sc, rows = score_frame(fr.name, specs, fr.structures, fr.specular_px, fr.label_px)
         if fr.normals_px is not None:  # the recommended normal's angle to the truth at its BP
             for s, r in zip(specs, rows):
@@ -631,7 +641,7 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     for r in (r for f in frames_out for r in f["candidates_detail"] if r.get("error_deg") is not None):
         errors.setdefault(_ok_on(r["tp_ok"], r["on"]), []).append(r["error_deg"])
     pool = pooled(scores).as_dict()
-    return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(),
+    return {"frames": frames_out, "pooled": pool, "settings": settings.to_dict(), "light_aware": light_aware,
             "statuses": dict(sorted(statuses.items())),
             "missed_by": dict(sum((Counter(f["missed_by"]) for f in frames_out), Counter()).most_common()),
             "reliability": {"candidates": reliability(conf, tp), "ok": reliability(conf[passing], tp[passing])},
@@ -662,77 +672,6 @@ def _normal_error_deg(spec: dict, normals_px: np.ndarray) -> float | None:
     if spec.get("normal") is None or not (0 <= u < w and 0 <= v < h) or not np.isfinite(normals_px[v, u]).all():
         return None
     return float(angle_between_deg(np.asarray(spec["normal"], dtype=np.float64), normals_px[v, u].astype(np.float64)))
-
-
-def reliability_figure(results: dict):
-    """The reliability diagram of the confidence: fraction of targets against mean confidence per bin,
-    for every candidate and for the ``ok`` ones, with each bin's count.
-    """
-    fig, ax = plt.subplots(figsize=(5.2, 4.4), layout="constrained")
-    ax.plot([0, 1], [0, 1], color="0.6", lw=1, ls="--", label="perfect calibration")
-    for key, marker, colour in (("candidates", "o", "#1f77b4"), ("ok", "s", "#d62728")):
-        rows = [r for r in results["reliability"][key] if r["n"]]
-        x = [r["mean_confidence"] for r in rows]
-        y = [r["fraction_true"] for r in rows]
-        ax.plot(x, y, marker=marker, color=colour, label=f"{key} (n = {sum(r['n'] for r in rows)})")
-        for r, xi, yi in zip(rows, x, y):
-            ax.annotate(f"n={r['n']}", (xi, yi), textcoords="offset points", xytext=(4, -10), fontsize=7, color=colour)
-    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="mean confidence in the bin",
-           ylabel="fraction that are labelled targets", title="Reliability of the confidence")
-    ax.legend(fontsize=8, loc="upper left")
-    return fig
-
-
-#: Most frames :func:`detection_figure` draws.
-FIGURE_FRAMES_MAX = 24
-
-
-def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int = 6):
-    """The frames with what detection got right and wrong, as a matplotlib figure.
-
-    ``ok`` estimates on targets: green circles; on a render's other specular structures (``specular``):
-    orange pluses; on anything else: red crosses; targets no ``ok`` estimate found: yellow squares. Of
-    more than :data:`FIGURE_FRAMES_MAX` frames only those with an error are drawn.
-    """
-    pairs = list(zip(frames, results["frames"]))
-    left_out = 0
-    if len(pairs) > FIGURE_FRAMES_MAX:
-        wrong = [(fr, res) for fr, res in pairs if res["ok"] > res["ok_tp"] or res["missed_targets_ok"]]
-        left_out = len(pairs) - min(len(wrong), FIGURE_FRAMES_MAX)
-        pairs = wrong[:FIGURE_FRAMES_MAX] or pairs[:1]
-    frames = [fr for fr, _ in pairs]
-    n = len(frames)
-    cols = min(columns, n)
-    rows_n = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows_n, cols, figsize=(max(2.6 * cols, 8.0), 2.9 * rows_n + 0.8),
-                             squeeze=False, layout="constrained")
-    for ax in axes.ravel():
-        ax.set_axis_off()
-    for ax, (fr, res) in zip(axes.ravel(), pairs):
-        ax.imshow(fr.image, cmap="gray" if fr.image.ndim == 2 else None)
-        tp = np.array([r["bp_px"] for r in res["candidates_detail"] if r["tp_ok"]]).reshape(-1, 2)
-        wrong = [r for r in res["candidates_detail"] if r["status"] == "ok" and not r["tp_ok"]]
-        glint = np.array([r["bp_px"] for r in wrong if r["on"] == SPECULAR_KIND]).reshape(-1, 2)
-        fp = np.array([r["bp_px"] for r in wrong if r["on"] != SPECULAR_KIND]).reshape(-1, 2)
-        miss = np.array(res["missed_targets_ok"]).reshape(-1, 2)
-        ax.scatter(tp[:, 0], tp[:, 1], s=40, facecolors="none", edgecolors="#2ca02c", lw=1.2)
-        ax.scatter(glint[:, 0], glint[:, 1], s=34, marker="+", c="#ff7f0e", lw=1.2)
-        ax.scatter(fp[:, 0], fp[:, 1], s=30, marker="x", c="#d62728", lw=1.2)
-        ax.scatter(miss[:, 0], miss[:, 1], s=40, marker="s", facecolors="none", edgecolors="#ffcc00", lw=1.2)
-        on_glints = "" if fr.specular_px is None else f"{len(glint)} on other glints, "
-        ax.set_title(f"{fr.name}: {res['ok_tp']} hit, {on_glints}{len(fp)} false, "
-                     f"{len(miss)} missed (of {res['targets']})", fontsize=7)
-    p = results["pooled"]
-
-    def pct(v):
-        return "n/a" if v is None else f"{v:.2f}"
-    fig.suptitle(f"ok estimates against labelled isolated highlights: precision {pct(p['precision_ok'])}, "
-                 f"recall {pct(p['recall_ok'])} over {p['targets']} targets\n(green circle: hit, "
-                 + ("orange plus: on a glint that is no isolated highlight,\n"
-                    if any(fr.specular_px is not None for fr in frames) else "")
-                 + "red cross: false positive, yellow square: missed)"
-                 + (f"; {left_out} frames without an error not drawn" if left_out else ""), fontsize=9)
-    return fig
 
 
 def confidence_rows(frames: list[LabelledFrame], settings=None, *,
