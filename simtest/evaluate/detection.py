@@ -34,27 +34,27 @@ from pathlib import Path
 
 import numpy as np
 
-from simtest._lazy import require  # noqa: E402
-from simtest.evaluate.calibration import cross_validated_confidence, ranking_auc, reliability  # noqa: E402
-from simtest.geometry.angles import angle_between_deg  # noqa: E402
-from simtest.geometry.cameras import PinholeCamera  # noqa: E402
-from simtest.geometry.response import video_response  # noqa: E402
-from simtest.harness.protocols import mesh_pose_overrides, realisation_overrides  # noqa: E402
-from simtest.harness.suite import bundled_suite_names, load_suite, realisation_seed  # noqa: E402
-from simtest.evaluate.operating import precision_recall  # noqa: E402
-from simtest.reconstruct.detect import luma  # noqa: E402
-from simtest.reconstruct.frame_verify import default_min_confidence  # noqa: E402
-from simtest.reconstruct.images import load_image  # noqa: E402
-from simtest.reconstruct.io import estimate_to_dict  # noqa: E402
-from simtest.reconstruct.pipeline import reconstruct  # noqa: E402
-from simtest.reconstruct.rig_centroid import light_aware_with_rig  # noqa: E402
-from simtest.reconstruct.settings import ReconSettings  # noqa: E402
-from simtest.reconstruct.verify import RESIDUAL_MAX_REL, assess, confidence_features  # noqa: E402
-from simtest.render.render import render_scene  # noqa: E402
-from simtest.render.sensor import field_stop_mask  # noqa: E402
-from simtest.render.truth import HighlightTarget, highlight_targets, specular_pixels  # noqa: E402
-from simtest.scene import with_overrides  # noqa: E402
-from simtest.scene.spec import load_scene  # noqa: E402
+from simtest._lazy import require
+from simtest.evaluate.calibration import cross_validated_confidence, ranking_auc, reliability
+from simtest.geometry.angles import angle_between_deg
+from simtest.geometry.cameras import PinholeCamera
+from simtest.geometry.response import video_response
+from simtest.harness.protocols import mesh_pose_overrides, realisation_overrides
+from simtest.harness.suite import bundled_suite_names, load_suite, realisation_seed
+from simtest.evaluate.operating import precision_recall
+from simtest.reconstruct.detect import luma
+from simtest.reconstruct.frame_verify import default_min_confidence
+from simtest.reconstruct.images import load_image
+from simtest.reconstruct.io import estimate_to_dict
+from simtest.reconstruct.pipeline import reconstruct
+from simtest.reconstruct.rig_centroid import light_aware_with_rig
+from simtest.reconstruct.settings import ReconSettings
+from simtest.reconstruct.verify import RESIDUAL_MAX_REL, assess, confidence_features
+from simtest.render.render import render_scene
+from simtest.render.sensor import field_stop_mask
+from simtest.render.truth import HighlightTarget, highlight_targets, specular_pixels
+from simtest.scene import with_overrides
+from simtest.scene.spec import load_scene
 
 __all__ = ["KINDS", "TARGET_KIND", "SPECULAR_KIND", "PASSING", "TOLERANCE_PX", "Structure", "FrameScore",
            "LabelledFrame", "match_candidates", "score_frame", "pooled", "groups", "is_suite", "labelled_real_frames",
