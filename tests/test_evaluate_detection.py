@@ -488,3 +488,12 @@ def test_light_aware_scoring_scores_what_the_command_gives(tmp_path):
     errors = [[r["error_deg"] for r in res if r["status"] == "ok"] for res in (rows, plain["frames"][0][
         "candidates_detail"])]
     assert plain["light_aware"] is False and errors[0] != errors[1]
+
+
+def test_evaluate_frames_reports_each_frame_done(tmp_path):
+    # a long evaluation (a suite with --light-aware) shows its progress frame by frame
+    from simtest.evaluate.detection import evaluate_frames
+
+    calls = []
+    evaluate_frames(labelled_real_frames(_labelled_set(tmp_path)), progress=lambda *a: calls.append(a))
+    assert calls == [(1, 2), (2, 2)]

@@ -175,8 +175,9 @@ def detection_command(
                                       progress=lambda done, total: progress.update(task, completed=done, total=total))
             else:
                 frames = rendered_frames(source, seed=seed)
-            progress.add_task(f"reconstructing {len(frames)} frame(s)", total=None)
-            results = evaluate_frames(frames, keep=kept, light_aware=light_aware)
+            task = progress.add_task(f"reconstructing {len(frames)} frame(s)", total=len(frames))
+            results = evaluate_frames(frames, keep=kept, light_aware=light_aware,
+                                      progress=lambda done, total: progress.update(task, completed=done))
         results = {"schema": "simtest.evaluate.detection", "schema_version": 1,
                    "simtest_version": __version__, "source": source} | results
         if source.endswith(".json"):

@@ -583,7 +583,7 @@ def _default_floor(frames: list[LabelledFrame], settings) -> float | None:
 
 
 def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | None = None,
-                    light_aware: bool = False) -> dict:
+                    light_aware: bool = False, progress=None) -> dict:
     """Reconstruct every frame with ``settings`` (default: ``reconstruct``'s) and score it.
 
     Parameters
@@ -599,6 +599,8 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
         Score what ``simtest reconstruct`` gives with a render's camera file: its response, then the light-aware
         step under its rig (:func:`~simtest.reconstruct.rig_centroid.light_aware_with_rig`), whose statuses and
         recommended normals are scored. False: the detection alone (the rig, no response, no fits).
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each frame.
 
     Returns
     -------
@@ -610,7 +612,7 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
     """
     settings = settings or ReconSettings.for_frames()
     scores, frames_out = [], []
-    for fr in frames:
+    for done, fr in enumerate(frames, 1):
         response = fr.response if light_aware else None
         ests = reconstruct(fr.image, fr.camera, settings=settings, lights=fr.lights, response=response)
         if keep is not None:
@@ -630,6 +632,8 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
                 why[next((r["status"] for r in rows if r["target"] == j), "no candidate")] += 1
         frames_out.append(sc.as_dict() | {"not_examined": ests.n_unexamined, "candidates_detail": rows,
                                           "missed_targets_ok": missed, "missed_by": dict(why)})
+        if progress is not None:
+            progress(done, len(frames))
     cand = [(f["name"], r) for f in frames_out for r in f["candidates_detail"] if r["confidence"] is not None]
     conf = np.array([r["confidence"] for _, r in cand], dtype=np.float64)
     tp = np.array([r["tp"] for _, r in cand], dtype=bool)

@@ -5,14 +5,10 @@ from __future__ import annotations
 
 import math
 
-import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-matplotlib.use("Agg", force=False)
-
-import matplotlib.pyplot as plt  # noqa: E402 - after choosing the back-end
-
-from simtest.evaluate.detection import SPECULAR_KIND, LabelledFrame  # noqa: E402
+from simtest.evaluate.detection import SPECULAR_KIND, LabelledFrame
 
 __all__ = ["FIGURE_FRAMES_MAX", "detection_figure", "reliability_figure"]
 
@@ -75,10 +71,7 @@ def detection_figure(frames: list[LabelledFrame], results: dict, *, columns: int
         on_glints = "" if fr.specular_px is None else f"{len(glint)} on other glints, "
         ax.set_title(f"{fr.name}: {res['ok_tp']} hit, {on_glints}{len(fp)} false, "
                      f"{len(miss)} missed (of {res['targets']})", fontsize=7)
-    p = results["pooled"]
-
-    def pct(v):
-        return "n/a" if v is None else f"{v:.2f}"
+    p, pct = results["pooled"], lambda v: "n/a" if v is None else f"{v:.2f}"
     fig.suptitle(f"ok estimates against labelled isolated highlights: precision {pct(p['precision_ok'])}, "
                  f"recall {pct(p['recall_ok'])} over {p['targets']} targets\n(green circle: hit, "
                  + ("orange plus: on a glint that is no isolated highlight,\n"
