@@ -253,3 +253,12 @@ def test_reconstruct_requires_out(files, tmp_path, monkeypatch):
     res = runner.invoke(app, ["reconstruct", str(files["png"]), "-k", str(files["K"])])
     assert res.exit_code == 2 and "--out" in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
+
+
+def test_a_video_of_no_frame_is_one_line_and_writes_nothing(files, tmp_path):
+    # as an empty folder is: a video whose container opens but holds no frame (a writer closed at once)
+    video = tmp_path / "empty.avi"
+    cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (SIZE, SIZE)).release()
+    res = runner.invoke(app, ["reconstruct", str(video), "-k", str(files["K"]), "-o", str(tmp_path / "o")])
+    _one_line(res, 2, "empty.avi", "decoded no frame")
+    assert not (tmp_path / "o").exists()

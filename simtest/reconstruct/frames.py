@@ -82,7 +82,7 @@ class FrameSource:
         InputError
             A frame file :func:`~simtest.reconstruct.images.load_image` refuses, or a video whose
             decoding stops before its stated frame count (less :data:`ESTIMATED_COUNT_SLACK` for
-            :data:`ESTIMATED_COUNT_SUFFIXES`), naming the file and the frame.
+            :data:`ESTIMATED_COUNT_SUFFIXES`) or gives no frame, naming the file and the frame.
         """
         if self.kind == "folder":
             for i, f in enumerate(self.files):
@@ -101,6 +101,8 @@ class FrameSource:
                 i += 1
         finally:
             cap.release()
+        if i == 0:  # (an empty folder is refused by open_frames; a video shows it only here)
+            raise InputError(f"{self.path}: OpenCV decoded no frame of this video (empty, or a codec it lacks)")
         slack = ESTIMATED_COUNT_SLACK if self.path.suffix.lower() in ESTIMATED_COUNT_SUFFIXES else 0
         if self.n_frames is not None and i < self.n_frames - slack:
             raise InputError(f"{self.path}: decoding stopped at frame {i} (video:{i}) of the "
