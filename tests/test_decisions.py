@@ -76,6 +76,8 @@ NOT_DECISIONS = {
     "verify._FLAT_SLACK": "float32 rounding slack of an exact test (30 ulps)",
     "view3d.MAX_SURFACE_GRID": _GUARD,
     "rig_pairs.DEPTH_SAMPLES": "a sampling density of a predicted curve (within 0.1 px of it)",
+    "rig_pairs._MOST_CUTS": "a cost bound on a sampling density: one depth step cut into at most this many "
+                            "pieces (a step whose image runs off towards the horizon; a frame is narrower)",
     "verify._REACH_T": "the isovalue NEIGHBOUR_REACH is stated at: a unit of it, not a threshold",
 }
 
