@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -52,6 +53,7 @@ from benchmarks.inputs import (BANNER, VIDEO_FRAMES, VIDEO_STEP_PX, banner_frame
                                synthetic_sphere_two_guides, video_first_frame)
 from benchmarks.opencv_replay import opencv_calls, replay_opencv_ms
 from benchmarks.timing import clone_env, cpu_s_with_workers, every_core, runs, single_core, time_ms, time_ms_cpu
+import simtest
 from simtest.bench import BenchResult
 from simtest.constants import SINGLE_THREAD_ENV
 from simtest.geometry.camera_file import CameraFile
@@ -65,6 +67,7 @@ from simtest.reconstruct.isophote import extract_isophote
 from simtest.reconstruct.lightaware import cubic_patch_fit, isocurve_fit, photometric_fit
 from simtest.reconstruct.pipeline import reconstruct, reconstruct_roi, reconstruct_rois
 from simtest.reconstruct.cli import reconstruct_single
+from simtest.render.outputs import write_render
 from simtest.reconstruct.light_fits import with_light_aware
 from simtest.resources import real_dir
 
@@ -256,6 +259,7 @@ def bench_reconstruct(repeat: int = 50) -> list[BenchResult]:
                                  colonoscope_frame(res), repeat)
     out += _bench_colonoscope_rig(res, repeat)
     out += _bench_default_colonoscope_rig(repeat)
+    out += _bench_first_command(repeat)
     return out
 
 
@@ -264,6 +268,40 @@ VIDEO_TARGET_MS_PER_FRAME = 50.0
 #: ... and a rendered 1350 x 1080 frame with its camera file in 2 s (issue 64's warm command; here
 #: the command's computation in process, imports left out).
 RIG_FRAME_TARGET_MS = 2000.0
+#: ... and a fresh install's first `simtest reconstruct` of such a frame in 20 s, the command's whole wall.
+FIRST_COMMAND_TARGET_MS = 20_000.0
+
+
+def _bench_first_command(repeat: int) -> list[BenchResult]:
+    """A fresh install's first ``simtest reconstruct frame.png -k camera.json`` of the default colonoscope render
+    (seed 0): the command in a new interpreter on a copy of simtest's sources without their bytecode (an editable
+    install's first run; pip wrote the dependencies' bytecode at install), wall of the whole command. One run,
+    only with ``repeat`` of 5 or more."""
+    name = ("a fresh install's first `simtest reconstruct frame.png -k camera.json` (default colonoscope): the "
+            "command's wall, simtest's bytecode not yet written, one run")
+    if repeat < 5:
+        return []
+    res = colonoscope_render("colonoscope")
+    if res is None:
+        return [BenchResult("reconstruct", name + " (Mitsuba unavailable)", float("nan"), "ms",
+                            FIRST_COMMAND_TARGET_MS)]
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        shutil.copytree(Path(simtest.__file__).parent, tmp / "simtest", ignore=shutil.ignore_patterns("__pycache__"))
+        write_render(res, tmp / "render")
+        cmd = [sys.executable, "-m", "simtest.cli", "reconstruct", str(tmp / "render" / "frame.png"), "-k",
+               str(tmp / "render" / "camera.json"), "-o", str(tmp / "out")]
+        env = {k: v for k, v in clone_env(PYTHONPATH=str(tmp)).items() if k != "PYTHONDONTWRITEBYTECODE"}
+        with every_core():
+            t0 = time.perf_counter()
+            proc = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp, env=env)
+            wall = time.perf_counter() - t0
+        written = any((tmp / "simtest").rglob("*.pyc"))
+    if proc.returncode != 0:
+        said = (proc.stderr.strip().splitlines() or [""])[-1]
+        return [BenchResult("reconstruct", f"{name} (failed: {said})", float("nan"), "ms", FIRST_COMMAND_TARGET_MS)]
+    return [BenchResult("reconstruct", name, wall * 1e3, "ms", FIRST_COMMAND_TARGET_MS, None,
+                        f"{proc.stdout.strip().split(';')[0]}; bytecode written: {written}")]
 
 
 def _video_run(n_frames: int, workers: int) -> dict | None:
