@@ -44,14 +44,17 @@ def test_the_shoulder_of_a_lobe_outside_the_frame_is_no_top(outside, sigma):
 @given(st.floats(8.0, 50.0), st.floats(4.0, 20.0), st.floats(0.2, 3.0), st.integers(0, 10_000))
 def test_a_top_inside_is_one_where_its_fall_to_the_edge_is_significant(inside, sigma, noise, seed):
     # the lobe's centre ``inside`` px from the right edge: a top where its fall to the edge (noise-free
-    # values) exceeds the bar by the noise's largest excursions, none where it falls short of the bar by them
-    # (4 sigma: the edge's 50 pixels and the BP each reach about 2.5 sigma, the estimate of sigma a few per cent)
+    # values) exceeds the bar by the noise's largest excursions, none where it falls short of the bar by them.
+    # Above, 6 sigma: the BP's one pixel down and the edge's highest near the lobe up reach about 3 sigma each,
+    # the estimate of sigma a few per cent more (20,000 draws each: 0.6 % miss at 4 sigma past the bar, 0.05 %
+    # at 5, none at 6; a random-seed run drew inside 8, sigma 10.5, noise 2: 4.3 sigma short). Below, 4 sigma:
+    # the edge's highest pixel only lowers the rise (none of 20,000 a top at 4 sigma under the bar)
     u = 119.0 - inside
     img = _lobe(u, sigma, noise=noise, seed=seed)
     box = (20, 70, 60, 120)
     fall = 100.0 * (1.0 - np.exp(-inside ** 2 / (2.0 * sigma ** 2)))  # the top above the edge's highest, noise-free
     got = interior_top(img, (u, 45.0), box)
-    if fall >= (SIGNIFICANCE_MIN + 4.0) * noise:
+    if fall >= (SIGNIFICANCE_MIN + 6.0) * noise:
         assert got
     elif fall <= (SIGNIFICANCE_MIN - 4.0) * noise:
         assert not got
