@@ -29,7 +29,6 @@ guide told apart as above.
 from __future__ import annotations
 
 import dataclasses
-import itertools
 
 import numpy as np
 
@@ -46,7 +45,8 @@ from simtest.reconstruct.lightaware.plane_solve import start_depths
 from simtest.reconstruct.lightaware.solve import _bisector_plane
 from simtest.reconstruct.recommend import with_guide_spread
 from simtest.reconstruct.rig_lobes import _bright_region, _inside
-from simtest.reconstruct.rig_pairs import _dense_curve, _in_frame, estimate_wander_px, guide_specular_points
+from simtest.reconstruct.rig_pairs import (_dense_curve, _guide_pairs, _in_frame, estimate_wander_px,
+                                           guide_specular_points)
 from simtest.reconstruct.verify import weak_white_peaks
 
 __all__ = ["lone_lobe_rows", "lone_fit_rows", "lone_rival"]
@@ -270,8 +270,8 @@ def _swap_seen(fit, est, camera, rig: LightRig, values: np.ndarray, clip) -> boo
     ring = _reach(est, 1.0)
     height = _rise(values, bp, ring)[0]
     tested = False
-    for i, j in itertools.permutations(range(len(L)), 2):
-        if i == own or not np.linalg.norm(L[i] - L[j]) > 0:
+    for i, j in _guide_pairs(L):
+        if i == own:
             continue
         depths, uv = _dense_curve(camera, L[i], L[j], ray, values.shape, PAIR_TOL_PX)  # (no lobe between samples)
         use = np.flatnonzero(_in_frame(uv, values.shape)

@@ -58,10 +58,13 @@ def _imaged_curves(camera, L: np.ndarray, ray, depths: np.ndarray):
     """Per ordered pair (i, j) of guides at different places: ``(i, j, uv)``, guide j's specular
     points (D, 2) imaged for the BP's unit ``ray`` as guide i's at ``depths`` (NaN: inadmissible); for
     rays (N, 3), uv (N, D, 2), one call of the camera model for all."""
-    for i in range(len(L)):
-        for j in range(len(L)):
-            if np.linalg.norm(L[i] - L[j]) > 0:
-                yield i, j, _imaged_curve(camera, L[i], L[j], ray, depths)
+    for i, j in _guide_pairs(L):
+        yield i, j, _imaged_curve(camera, L[i], L[j], ray, depths)
+
+
+def _guide_pairs(L: np.ndarray) -> list[tuple[int, int]]:
+    """The ordered pairs (i, j) of guides at different places among the positions ``L`` (G, 3), i first."""
+    return [(i, j) for i in range(len(L)) for j in range(len(L)) if np.linalg.norm(L[i] - L[j]) > 0]
 
 
 def _imaged_curve(camera, Li, Lj, ray, depths: np.ndarray) -> np.ndarray:
