@@ -79,10 +79,11 @@ def test_a_renders_report_names_the_candidates_on_its_glints(tmp_path, monkeypat
 
     monkeypatch.setattr(detection, "render_scene", capture)
     out = tmp_path / "out"
-    res = CliRunner().invoke(app, ["evaluate", "detection", "colonoscope_pinhole", "-o", str(out)])
+    res = CliRunner().invoke(app, ["evaluate", "detection", "colonoscope_pinhole", "-o", str(out), "--detection-only"])
     assert res.exit_code == 0, res.output
     (rr,) = renders
     results = json.loads((out / "results.json").read_text())
+    assert results["light_aware"] is False  # (the candidates' labels are the detection's: no fits needed)
     rows = results["frames"][0]["candidates_detail"]
     specular = rr.mask & (rr.specular > 0) & (rr.specular >= 0.5 * rr.linear)
     seen = set()

@@ -313,6 +313,7 @@ def test_a_suite_is_scored_render_by_render_with_the_seeds_validate_gives(tmp_pa
     res = CliRunner().invoke(app, ["evaluate", "detection", str(path), "-o", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
     r = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert r["light_aware"] is True  # the command's default: what `simtest reconstruct -k camera.json` gives
     (g,) = r["groups"]
     assert g["name"] == "distance" and g["frames"] == 2
     assert g["targets"] == sum(f["targets"] for f in r["frames"])

@@ -148,13 +148,14 @@ def detection_command(
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Render seed (a scene; default the scene's)."),  # noqa: UP045
     realisations: Optional[int] = typer.Option(  # noqa: UP045
         None, "--realisations", "-n", min=1, help="Renders per setting (a suite; default the suite's)."),
-    light_aware: bool = typer.Option(False, "--light-aware", help="Score what `simtest reconstruct -k "
-                                     "camera.json` gives a render: its response, the light-aware fits under its "
-                                     "rig and their recommended normals (slower)."),
+    light_aware: bool = typer.Option(True, "--light-aware/--detection-only", help="A render: score what "
+                                     "`simtest reconstruct -k camera.json` gives it (its response, the light-aware "
+                                     "fits under its rig, their recommended normals), or the detection alone "
+                                     "(faster; no fits)."),
 ) -> None:
     """Score highlight detection: precision, recall and F1 of the candidates and of the "ok"
     estimates against labelled isolated highlights, per frame and pooled, with reconstruct's
-    defaults.
+    defaults (a render: with its camera file, as `simtest reconstruct -k camera.json` runs).
 
     Writes, in the folder OUT (replaced as a whole): OUT/results.json (counts, scores and where each
     candidate fell), OUT/report.md, OUT/detection.png (hits, false positives and misses),
@@ -219,8 +220,8 @@ def _detection_markdown(results: dict) -> str:
          "lights' highlights: one of the first k; see simtest.evaluate.detection). Renders are "
          + ("reconstructed as simtest reconstruct does with their camera file (response, light rig, light-aware "
             "fits). " if results.get("light_aware") else
-            "detected and checked under their light rig, without the light-aware fits (which can turn a rig "
-            "partner's row ok in simtest reconstruct; `--light-aware` runs them). ")
+            "detected and checked under their light rig, without the light-aware fits (`--detection-only`; "
+            "the fits can turn a rig partner's row ok in simtest reconstruct). ")
          + "On a render, a candidate on no target falls on `specular` where "
          "its light is mostly specular reflection (a glint that is not an isolated highlight), else on "
          "`unlabelled`.", ""]
@@ -261,7 +262,7 @@ def _detection_markdown(results: dict) -> str:
           + (", ".join(f"{k} {v}" for k, v in results.get("missed_by", {}).items()) or "none") + ".", ""]
     if results.get("normal_error_deg"):
         how = ("(with the light-aware fits, as `simtest reconstruct` with the camera file)"
-               if results.get("light_aware") else "(without the light-aware fits: `--light-aware` runs them)")
+               if results.get("light_aware") else "(without the light-aware fits: `--detection-only`)")
         L += [f"The ok estimates' recommended normals {how} against the render's true normal "
               "at the BP (its shading normal, with the micro-relief where the scene has one), by what they fall on:", "",
               "| on | n | median error (deg) | 90th percentile (deg) |", "|---|---|---|---|"]
