@@ -148,10 +148,9 @@ def detection_command(
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Render seed (a scene; default the scene's)."),  # noqa: UP045
     realisations: Optional[int] = typer.Option(  # noqa: UP045
         None, "--realisations", "-n", min=1, help="Renders per setting (a suite; default the suite's)."),
-    light_aware: bool = typer.Option(True, "--light-aware/--detection-only", help="A render: score what "
-                                     "`simtest reconstruct -k camera.json` gives it (its response, the light-aware "
-                                     "fits under its rig, their recommended normals), or the detection alone "
-                                     "(faster; no fits)."),
+    light_aware: bool = typer.Option(True, "--light-aware/--detection-only", help="A render: what `simtest "
+                                     "reconstruct -k camera.json` gives it (response, rig, light-aware fits and "
+                                     "their normals), or the detection alone (faster)."),
 ) -> None:
     """Score highlight detection: precision, recall and F1 of the candidates and of the "ok"
     estimates against labelled isolated highlights, per frame and pooled, with reconstruct's
