@@ -480,6 +480,8 @@ def test_light_aware_scoring_scores_what_the_command_gives(tmp_path):
                           response=cam.response)
     rows = evaluate_frames([frame], light_aware=True)["frames"][0]["candidates_detail"]
     assert [r["status"] for r in rows] == [s["status"] for s in specs]
+    # the fits in two worker processes (the command's default on this machine): the same rows, every number
+    assert evaluate_frames([frame], light_aware=True, workers=2)["frames"][0]["candidates_detail"] == rows
     assert any(s["status"] == "ok" and s["normal_from"] != "bp_ray" for s in specs)  # (the premise: fits ran)
     n16 = n.astype(np.float16).astype(np.float64)
     for r, s in zip(rows, specs):

@@ -40,6 +40,9 @@ from simtest.reconstruct.view3d import render_view, surface_from_depth
 #: What ``evaluate c3vd`` writes in OUT (fnmatch patterns; nothing else may be there).
 OUTPUT_FILES = ("results.json", "report.html", "view_*.png")
 
+#: ``--workers`` of both commands: the light-aware fits' processes (the results do not depend on it).
+WORKERS_OPTION = typer.Option(0, "--workers", "-j", min=0, show_default=False, help="Worker processes for each "
+                              "frame's light-aware fits (0, the default: one per core; at most the CPU count).")
 evaluate_app = typer.Typer(help="Score reconstructions against datasets with ground-truth normals.", no_args_is_help=True)
 
 
@@ -63,9 +66,7 @@ def c3vd_command(
     max_frames: int = typer.Option(0, "--max-frames", help="Evaluate only the first N frames (0: all).", min=0),
     views: int = typer.Option(0, "--views", help="Also write OUT/view_NNNN.png, a 3D view (estimates beside the GT "
                               "surface from depth), for the first N frames with a reconstructed highlight.", min=0),
-    workers: int = typer.Option(0, "--workers", "-j", min=0, show_default=False,
-                                help="Worker processes for each frame's light-aware fits (0, the default: one "
-                                "per core; at most the CPU count)."),
+    workers: int = WORKERS_OPTION,
 ) -> None:
     """Reconstruct every frame of SEQ_DIR and score every estimator against the ground truth:
     the normals, and with a light rig in the camera file the light-aware fits' depth against
@@ -151,6 +152,7 @@ def detection_command(
     light_aware: bool = typer.Option(True, "--light-aware/--detection-only", help="A render: what `simtest "
                                      "reconstruct -k camera.json` gives it (response, rig, light-aware fits and "
                                      "their normals), or the detection alone (faster)."),
+    workers: int = WORKERS_OPTION,
 ) -> None:
     """Score highlight detection: precision, recall and F1 of the candidates and of the "ok"
     estimates against labelled isolated highlights, per frame and pooled, with reconstruct's
@@ -161,7 +163,7 @@ def detection_command(
     OUT/reliability.png (the confidence's reliability diagram) and OUT/precision_recall.png. Exit
     status 2: bad input; 4: OUT cannot be written.
     """
-    target = check_out_folder(out, DETECTION_FILES)
+    target, workers = check_out_folder(out, DETECTION_FILES), check_workers(workers) or os.cpu_count() or 1
     if Path(source).suffix.lower() not in ("", ".json", ".toml"):  # an image or another file
         fail(f"{source}: not a labelled set (.json), a scene or a suite (.toml or a bundled name)", BAD_INPUT)
     kept: list = []  # each frame's estimates, for the confidence's cross-validation
@@ -176,7 +178,7 @@ def detection_command(
             else:
                 frames = rendered_frames(source, seed=seed)
             task = progress.add_task(f"reconstructing {len(frames)} frame(s)", total=len(frames))
-            results = evaluate_frames(frames, keep=kept, light_aware=light_aware,
+            results = evaluate_frames(frames, keep=kept, light_aware=light_aware, workers=workers,
                                       progress=lambda done, total: progress.update(task, completed=done))
         results = {"schema": "simtest.evaluate.detection", "schema_version": 1,
                    "simtest_version": __version__, "source": source} | results
@@ -195,10 +197,8 @@ def detection_command(
         fail(exc, BAD_INPUT)
 
     def fill(folder: Path) -> None:
-        (folder / "results.json").write_text(text, encoding="ascii")
-        (folder / "report.md").write_text(md, encoding="utf-8")
-        for name, png in pngs.items():
-            (folder / name).write_bytes(png)
+        for name, data in ({"results.json": text.encode("ascii"), "report.md": md.encode("utf-8")} | pngs).items():
+            (folder / name).write_bytes(data)
 
     write_out_folder(out, target, fill, DETECTION_FILES)
     p = results["pooled"]

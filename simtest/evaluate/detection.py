@@ -583,7 +583,7 @@ def _default_floor(frames: list[LabelledFrame], settings) -> float | None:
 
 
 def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | None = None,
-                    light_aware: bool = False, progress=None) -> dict:
+                    light_aware: bool = False, workers: int = 1, progress=None) -> dict:
     """Reconstruct every frame with ``settings`` (default: ``reconstruct``'s) and score it.
 
     Parameters
@@ -599,6 +599,8 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
         Score what ``simtest reconstruct`` gives with a render's camera file: its response, then the light-aware
         step under its rig (:func:`~simtest.reconstruct.rig_centroid.light_aware_with_rig`), whose statuses and
         recommended normals are scored. False: the detection alone (the rig, no response, no fits).
+    workers : int
+        Worker processes for the light-aware fits of each frame (the results do not depend on it).
     progress : callable, optional
         Called as ``progress(done, total)`` after each frame.
 
@@ -618,7 +620,7 @@ def evaluate_frames(frames: list[LabelledFrame], settings=None, *, keep: list | 
         if keep is not None:
             keep.append(ests)
         rows_of = ests if not light_aware or fr.lights is None else light_aware_with_rig(
-            fr.image, ests, fr.camera, fr.lights, cubic=False, response=response)  # (as the command runs it)
+            fr.image, ests, fr.camera, fr.lights, cubic=False, response=response, workers=workers)  # (as the CLI)
         specs = [estimate_to_dict(e) for e in rows_of]
         sc, rows = score_frame(fr.name, specs, fr.structures, fr.specular_px, fr.label_px)
         if fr.normals_px is not None:  # the recommended normal's angle to the truth at its BP
