@@ -18,7 +18,7 @@ MAX_FUNCTION_LINES = 150
 #: issue 64's bound on the whole package, and where it stands: a ceiling that only comes down
 #: (each raise, and what it bought, is in the commit that made it: `git log -S PACKAGE_LINES_CEILING`)
 TARGET_PACKAGE_LINES = 30_000
-PACKAGE_LINES_CEILING = 43_176
+PACKAGE_LINES_CEILING = 43_184
 
 #: module -> its lines today (to be split by job as the per-frame tables replace them)
 LONG_MODULES: dict[str, int] = {}

@@ -576,7 +576,7 @@ def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarra
     ok = np.array([e.ok for e in out], bool)
     fitted = np.array([e.status not in NOT_FITTED for e in out], bool)
     free = ~ok & fitted & (gaps <= PAIR_TOL_PX + wander)
-    if (gaps[ok] < PAIR_TOL_PX).any():
+    if _ok_row_at(out, bps, uv):
         return None
     if free.any():
         return int(np.flatnonzero(free)[np.argmin(gaps[free])]), None
@@ -589,6 +589,13 @@ def _partner(out: list, bps: np.ndarray, wander: np.ndarray, uv, gray: np.ndarra
         if region is not None and _inside(region, uv[None])[0]:
             return int(c), region
     return None
+
+
+def _ok_row_at(out: list, bps: np.ndarray, uv, but: int | None = None) -> bool:
+    """Whether an ok row of ``out`` (other than row ``but``) has its BP within ``PAIR_TOL_PX`` of ``uv``: that
+    guide's highlight has its row already, which a partner's row there would give twice."""
+    gaps = np.nan_to_num(np.linalg.norm(bps - np.asarray(uv, np.float64), axis=1), nan=np.inf)
+    return bool(((gaps < PAIR_TOL_PX) & np.array([e.ok for e in out], bool) & (np.arange(len(out)) != but)).any())
 
 
 def _placing_plane(est, bp, reach: float, camera, rig):
@@ -680,10 +687,11 @@ def partner_rows(image, estimates, camera, rig, fit_kwargs: dict, *, gray=None) 
                 fits = light_aware_estimates(image, out[c], camera, rig, **(fit_kwargs | PLANE_ONLY))
             pf = fits.get("photometric_fit")
             q = guide_specular_points(camera, rig, pf.normal, pf.distance_mm) if _plane(pf) else None
-            if q is None or not ((np.linalg.norm(q[j] - bps[c]) <= PAIR_TOL_PX + wander[c]
-                                  if region is None else _inside(region, q[j][None])[0])
-                                 and _own_guide(q, bps[a], PAIR_TOL_PX + wander[a], est) == i):
-                continue
+            if q is None or _ok_row_at(out, bps, q[j], but=c) or not (
+                    (np.linalg.norm(q[j] - bps[c]) <= PAIR_TOL_PX + wander[c]
+                     if region is None else _inside(region, q[j][None])[0])
+                    and _own_guide(q, bps[a], PAIR_TOL_PX + wander[a], est) == i):
+                continue  # (an ok row at its specular point holds that guide's highlight already)
             out[c] = _row(out[c], camera, q[j], f"guide {j + 1}'s highlight where guide {i + 1}'s fit puts it",
                           f"BP at its specular point, normal from its photometric fit, which puts guide {i + 1}'s back",
                           light_aware=fits)
